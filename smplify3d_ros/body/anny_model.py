@@ -1,0 +1,135 @@
+"""Anny (NAVER, Apache-2.0 code, CC0 MakeHuman assets), the embedded default body model.
+
+What this adapter adds to `anny.Anny`:
+- the 19 body joints (`body.joints.BODY_JOINTS`) mapped to Anny bones; fingers, toes, twist bones and
+  eyes stay at rest;
+- canonical axes: Anny is z-up with the face towards −y; we expose x left, y up, z forward like SMPL,
+  so that poses and root orientations mean the same for every model;
+- `transl` is the position of the pelvis (Anny's root bone) in the camera frame;
+- COCO-17 keypoints from the regressor the wheel ships (`anny/data/keypoints/coco.pth`);
+- a face -> body-part map from the skinning weights (each vertex's dominant bone).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import roma
+import torch
+
+from smplify3d_ros.body.base import BodyModel, BodyOutput
+from smplify3d_ros.body.joints import BODY_JOINTS
+from smplify3d_ros.keypoints import NUM_KEYPOINTS, PART_INDEX
+
+log = logging.getLogger(__name__)
+
+JOINT_TO_BONE: dict[str, str] = {
+    "left_hip": "upperleg01.L", "right_hip": "upperleg01.R",
+    "left_knee": "lowerleg01.L", "right_knee": "lowerleg01.R",
+    "left_ankle": "foot.L", "right_ankle": "foot.R",
+    "spine1": "spine04", "spine2": "spine02", "spine3": "spine01",
+    "neck": "neck01", "head": "head",
+    "left_collar": "clavicle.L", "right_collar": "clavicle.R",
+    "left_shoulder": "upperarm01.L", "right_shoulder": "upperarm01.R",
+    "left_elbow": "lowerarm01.L", "right_elbow": "lowerarm01.R",
+    "left_wrist": "wrist.L", "right_wrist": "wrist.R",
+}
+
+# Bones that start a body part; every other bone belongs to the part of its nearest such ancestor.
+PART_ROOT_BONES: dict[str, str] = {
+    "upperleg01.L": "left_upper_leg", "lowerleg01.L": "left_lower_leg",
+    "upperleg01.R": "right_upper_leg", "lowerleg01.R": "right_lower_leg",
+    "upperarm01.L": "left_upper_arm", "lowerarm01.L": "left_lower_arm",
+    "upperarm01.R": "right_upper_arm", "lowerarm01.R": "right_lower_arm",
+    "neck01": "head", "root": "torso",
+}
+
+# Anny axes (x left, y back, z up) from canonical axes (x left, y up, z forward): a = C @ s.
+C_ANNY_FROM_CANONICAL = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+# Parts of the Anny segmentation that are inside the body (never seen by a camera or a LiDAR).
+_INTERNAL_SEGMENTS = ("eye_back.L", "eye_back.R", "eye_cavity.L", "eye_cavity.R", "mouth_cavity", "tongue")
+
+
+class AnnyBody(BodyModel):
+    name = "anny"
+
+    def __init__(self, shape_sigma: float, shape_bound_weight: float) -> None:
+        super().__init__()
+        import anny  # heavy import (warp), kept local
+
+        dtype = torch.get_default_dtype()
+        model = anny.Anny().to(dtype=dtype)
+        model.requires_grad_(False)
+        self.anny = model
+        self.shape_names = tuple(model.phenotype_labels)
+        self.shape_sigma = shape_sigma
+        self.shape_bound_weight = shape_bound_weight
+        labels = list(model.bone_labels)
+        self.bone_index = [labels.index(JOINT_TO_BONE[j]) for j in BODY_JOINTS]
+        self.root_bone = labels.index("root")
+        regressor = anny.KeypointsRegressor.coco(model)
+        self.register_buffer("kp_weights", regressor.regression_weights[:NUM_KEYPOINTS].to(dtype))
+        self.register_buffer("C", C_ANNY_FROM_CANONICAL.to(dtype))
+        self.faces = torch.as_tensor(model.faces, dtype=torch.int64)
+        self.part_of_face = self._face_parts(model, labels)
+        with torch.no_grad():
+            rest = self._posed_canonical(self.mean_shape()[None], torch.zeros(1, len(BODY_JOINTS), 3))
+        self._init_anatomy(rest[1][0].double().numpy())
+
+    # -- construction helpers ----------------------------------------------------------------------
+    def _face_parts(self, model, labels: list[str]) -> torch.Tensor:
+        parents = list(model.bone_parents)
+        bone_part = []
+        for b in range(len(labels)):
+            i = b
+            while labels[i] not in PART_ROOT_BONES:
+                i = parents[i]
+            bone_part.append(PART_INDEX[PART_ROOT_BONES[labels[i]]])
+        weights = model.vertex_bone_weights
+        dominant = model.vertex_bone_indices.gather(1, weights.argmax(dim=1, keepdim=True))[:, 0]
+        vertex_part = torch.as_tensor(bone_part)[dominant]
+        face_part = vertex_part[self.faces].mode(dim=1).values
+        try:
+            from anny.face_segmentation import get_face_segmentation_mask
+
+            internal = get_face_segmentation_mask(model, list(_INTERNAL_SEGMENTS)).cpu()
+            face_part[internal] = -1
+        except Exception as exc:  # noqa: BLE001 - the segmentation is a refinement, not a requirement
+            log.warning("Anny segmentation unavailable (%s); internal faces kept", exc)
+        return face_part
+
+    # -- model -------------------------------------------------------------------------------------
+    def mean_shape(self) -> torch.Tensor:
+        return torch.full((len(self.shape_names),), 0.5, dtype=self.kp_weights.dtype,
+                          device=self.kp_weights.device)
+
+    def shape_prior(self, shape: torch.Tensor) -> torch.Tensor:
+        """Phenotypes near the population mean (0.5, spread `shape_sigma`) and inside [0, 1]."""
+        near_mean = (((shape - 0.5) / self.shape_sigma) ** 2).sum(-1)
+        outside = (torch.relu(-shape) + torch.relu(shape - 1.0)) ** 2
+        return near_mean + self.shape_bound_weight * outside.sum(-1)
+
+    def _posed_canonical(self, shape: torch.Tensor, pose: torch.Tensor):
+        """Vertices and joints of the posed body in canonical axes, pelvis at the origin."""
+        B = max(shape.shape[0], pose.shape[0])
+        C = self.C.to(pose.dtype)
+        rot = C @ roma.rotvec_to_rotmat(pose) @ C.T  # (B, J, 3, 3) in Anny axes
+        deltas = torch.eye(4, dtype=pose.dtype, device=pose.device).repeat(B, len(self.anny.bone_labels), 1, 1)
+        deltas[:, self.bone_index, :3, :3] = rot.expand(B, -1, -1, -1)
+        out = self.anny(pose_parameters=deltas, phenotype_kwargs=shape.expand(B, -1))
+        pelvis = out["bone_poses"][:, self.root_bone, :3, 3]  # (B, 3)
+        verts = (out["vertices"] - pelvis[:, None]) @ C  # C^T applied to row vectors
+        joints = (out["bone_poses"][:, self.bone_index, :3, 3] - pelvis[:, None]) @ C
+        return verts, joints
+
+    def forward(
+        self, shape: torch.Tensor, pose: torch.Tensor, root_orient: torch.Tensor, transl: torch.Tensor
+    ) -> BodyOutput:
+        verts, joints = self._posed_canonical(shape, pose)
+        R = roma.rotvec_to_rotmat(root_orient)  # (B, 3, 3)
+        verts = verts @ R.transpose(1, 2) + transl[:, None]
+        joints = joints @ R.transpose(1, 2) + transl[:, None]
+        keypoints = torch.einsum("kv,bvd->bkd", self.kp_weights.to(verts.dtype), verts)
+        return BodyOutput(verts, joints, keypoints)

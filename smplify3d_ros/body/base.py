@@ -1,0 +1,104 @@
+"""The interface every body model implements, and the priors they share.
+
+Convention for all models: `forward(shape, pose, root_orient, transl)` takes batch-first tensors
+(B, S), (B, J, 3), (B, 3), (B, 3) and returns a `BodyOutput` in the camera frame. `pose` rows follow
+`joint_names` (see `body.joints.BODY_JOINTS`), axis-angle in the canonical body axes (x: body left,
+y: up, z: forward); `root_orient` rotates those axes into the camera frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from smplify3d_ros.body.joints import BENDING_JOINTS, BODY_JOINTS, AnatomicalFrames, anatomical_frames
+from smplify3d_ros.keypoints import PART_DRIVING_JOINTS, PART_NAMES
+
+
+@dataclass
+class BodyOutput:
+    vertices: torch.Tensor  # (B, V, 3) m, camera frame
+    joints: torch.Tensor  # (B, J, 3) positions of `joint_names`, m, camera frame
+    keypoints: torch.Tensor  # (B, 17, 3) COCO-17 keypoints, m, camera frame
+
+
+class BodyModel(torch.nn.Module):
+    """Base class: subclasses set the attributes below and implement `forward` and `shape_prior`."""
+
+    name: str
+    joint_names: tuple[str, ...] = BODY_JOINTS
+    shape_names: tuple[str, ...]
+    faces: torch.Tensor  # (F, 3) int64
+    part_of_face: torch.Tensor  # (F,) int64 index into keypoints.PART_NAMES, -1 for faces never used
+
+    # -- set by `_init_anatomy` from the rest joint positions --------------------------------------
+    anatomy: AnatomicalFrames
+
+    def _init_anatomy(self, rest_joints_canonical: np.ndarray) -> None:
+        self.anatomy = anatomical_frames(rest_joints_canonical)
+        dtype = torch.get_default_dtype()
+        self.register_buffer("anat_frames", torch.as_tensor(self.anatomy.frames, dtype=dtype))
+        self.register_buffer("anat_ranges", torch.as_tensor(self.anatomy.ranges, dtype=dtype))
+        self.register_buffer("anat_rest", torch.as_tensor(self.anatomy.rest_offset, dtype=dtype))
+        self.bending_index = [self.joint_names.index(n) for n in BENDING_JOINTS]
+        # joints driving each part, as indices (for the occlusion prior)
+        self.part_joint_index = [
+            [self.joint_names.index(j) for j in PART_DRIVING_JOINTS[p]] for p in PART_NAMES
+        ]
+
+    @property
+    def joint_ranges(self) -> torch.Tensor:
+        """(J, 3, 2) rad: [min, max] of [flexion, twist, abduction] relative to the rest pose."""
+        return self.anat_ranges
+
+    def mean_shape(self) -> torch.Tensor:
+        raise NotImplementedError
+
+    def rotation_center(self, shape: torch.Tensor, transl: torch.Tensor) -> torch.Tensor:
+        """(B, 3) camera-frame point that `root_orient` rotates the body about (Anny: the pelvis,
+        which `transl` places; SMPL: its root joint j0(β) + transl)."""
+        return transl
+
+    def shape_prior(self, shape: torch.Tensor) -> torch.Tensor:
+        """(B, S) -> (B,) L_β."""
+        raise NotImplementedError
+
+    def forward(  # noqa: D401 - torch signature
+        self, shape: torch.Tensor, pose: torch.Tensor, root_orient: torch.Tensor, transl: torch.Tensor
+    ) -> BodyOutput:
+        raise NotImplementedError
+
+    # -- anatomical coordinates --------------------------------------------------------------------
+    def pose_to_anatomical(self, pose: torch.Tensor) -> torch.Tensor:
+        """(B, J, 3) axis-angle -> (B, J, 3) [flexion, twist, abduction] rad relative to rest
+        (exact for rotations about one anatomical axis, a first-order approximation otherwise)."""
+        return torch.einsum("jab,...jb->...ja", self.anat_frames.to(pose.dtype), pose)
+
+    def anatomical_to_pose(self, angles: torch.Tensor, from_neutral: bool = False) -> torch.Tensor:
+        """Inverse of `pose_to_anatomical`. With `from_neutral`, angles are measured from the
+        anatomical neutral (limbs straight and hanging) instead of the model's rest pose."""
+        if from_neutral:
+            angles = angles - self.anat_rest.to(angles.dtype)
+        return torch.einsum("jba,...jb->...ja", self.anat_frames.to(angles.dtype), angles)
+
+    # -- priors shared by all models -----------------------------------------------------------------
+    def joint_range_prior(self, pose: torch.Tensor) -> torch.Tensor:
+        """(B, J, 3) -> (B,): squared excess (rad²) of each anatomical angle outside its range."""
+        anat = self.pose_to_anatomical(pose)
+        lo, hi = self.anat_ranges[..., 0].to(pose.dtype), self.anat_ranges[..., 1].to(pose.dtype)
+        excess = torch.relu(lo - anat) + torch.relu(anat - hi)
+        return (excess**2).sum(dim=(-1, -2))
+
+    def pose_prior(self, pose: torch.Tensor) -> torch.Tensor:
+        """L_θ: the anatomical joint-range prior (models with a learned prior override this)."""
+        return self.joint_range_prior(pose)
+
+    def bending_prior(self, pose: torch.Tensor) -> torch.Tensor:
+        """L_a (Eq. 5): Σ exp(−flexion) over elbows and knees, flexion measured from straight, so that
+        hyper-extension (negative flexion) is penalised exponentially."""
+        index = self.bending_index
+        flexion_axes = self.anat_frames[index, 0].to(pose.dtype)  # (4, 3)
+        flexion = (pose[:, index] * flexion_axes).sum(-1) + self.anat_rest[index, 0].to(pose.dtype)
+        return torch.exp(-flexion).sum(dim=-1)

@@ -1,0 +1,150 @@
+"""Fitting parameters (values and their meaning in params/base/fitting.yaml)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from smplify3d_ros.config import require
+
+
+@dataclass
+class BodyConfig:
+    model: Literal["anny", "smpl"]
+    smpl_model_path: str
+    smpl_coco_regressor_path: str
+    smpl_gmm_path: str
+    smpl_num_betas: int
+    anny_shape_sigma: float
+    shape_bound_weight: float
+
+    def __post_init__(self) -> None:
+        require(self.smpl_num_betas > 0, "smpl_num_betas must be > 0")
+        require(self.anny_shape_sigma > 0, "anny_shape_sigma must be > 0")
+        require(self.shape_bound_weight >= 0, "shape_bound_weight must be >= 0")
+
+
+@dataclass
+class VisibilityConfig:
+    culling_threshold: float
+    keypoint_conf_image: float
+    keypoint_conf_lidar: float
+
+    def __post_init__(self) -> None:
+        require(-1.0 <= self.culling_threshold <= 1.0, "culling_threshold must be in [-1, 1]")
+        for name in ("keypoint_conf_image", "keypoint_conf_lidar"):
+            require(0.0 <= getattr(self, name) <= 1.0, f"{name} must be in [0, 1]")
+
+
+@dataclass
+class IcpConfig:
+    enabled: bool
+    max_iterations: int
+    convergence_criterion: float
+    max_correspondence_distance: float
+    kernel: float
+    voxel_size: float
+    max_points_per_voxel: int
+    min_inlier_fraction: float
+    max_translation: float
+    prealign_iterations: int
+
+    def __post_init__(self) -> None:
+        require(self.max_iterations > 0, "max_iterations must be > 0")
+        for name in ("convergence_criterion", "max_correspondence_distance", "kernel", "voxel_size",
+                     "max_translation"):
+            require(getattr(self, name) > 0, f"{name} must be > 0")
+        require(self.max_points_per_voxel > 0, "max_points_per_voxel must be > 0")
+        require(self.prealign_iterations >= 0, "prealign_iterations must be >= 0")
+        require(0.0 <= self.min_inlier_fraction <= 1.0, "min_inlier_fraction must be in [0, 1]")
+
+
+@dataclass
+class InitConfig:
+    body_height: float
+    torso_height: float
+    shoulder_width: float
+    hip_width: float
+    side_on_cos: float
+    lidar_surface_offset: float
+    keypoint_conf: float
+    face_conf: float
+    refine_iterations: int
+    refine_lr: float
+    refine_pose_weight: float
+
+    def __post_init__(self) -> None:
+        for name in ("body_height", "torso_height", "shoulder_width", "hip_width", "refine_lr"):
+            require(getattr(self, name) > 0, f"{name} must be > 0")
+        require(self.lidar_surface_offset >= 0, "lidar_surface_offset must be >= 0")
+        require(self.refine_iterations >= 0, "refine_iterations must be >= 0")
+        require(0 <= self.keypoint_conf <= 1 and 0 <= self.face_conf <= 1, "confidences must be in [0, 1]")
+
+
+@dataclass
+class LossWeights:
+    """λ of Eq. 2 / 11-14. The reference squares them (w² · L) when `square_weights` is true."""
+
+    pose: float  # λ_θ
+    bend: float  # λ_a
+    shape: float  # λ_β
+    chamfer: float  # λ_3D in stage 2 (and single-stage)
+    chamfer_final: float  # λ_3D in stage 3
+    occlusion: float  # λ_θocc
+    sigma_px: float  # Geman-McClure σ, stages 1-2 (and single-stage)
+    sigma_px_final: float  # Geman-McClure σ, stage 3
+
+    def __post_init__(self) -> None:
+        for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "occlusion"):
+            require(getattr(self, name) >= 0, f"{name} must be >= 0")
+        require(self.sigma_px > 0 and self.sigma_px_final > 0, "sigma_px values must be > 0")
+
+
+@dataclass
+class OptimizerProfile:
+    scheme: Literal["three_stage", "single_stage"]
+    optimizer: Literal["adam"]
+    lr: float
+    betas: tuple[float, float]
+    iterations: tuple[int, int, int]
+    single_stage_iterations: int
+    early_stop_rel_tol: float
+    early_stop_patience: int
+    chamfer_max_vertices: int
+    chamfer_max_points: int
+    square_weights: bool
+    weights: LossWeights
+
+    def __post_init__(self) -> None:
+        require(self.lr > 0, "lr must be > 0")
+        require(all(i >= 0 for i in self.iterations), "iterations must be >= 0")
+        require(self.single_stage_iterations >= 0, "single_stage_iterations must be >= 0")
+        require(self.early_stop_rel_tol >= 0, "early_stop_rel_tol must be >= 0")
+        require(self.early_stop_patience > 0, "early_stop_patience must be > 0")
+        require(self.chamfer_max_vertices >= 0 and self.chamfer_max_points >= 0,
+                "chamfer_max_vertices / chamfer_max_points must be >= 0 (0 = all)")
+
+
+@dataclass
+class FittingConfig:
+    body: BodyConfig
+    profile: str
+    profiles: dict[str, OptimizerProfile]
+    visibility: VisibilityConfig
+    icp: IcpConfig
+    init: InitConfig
+    min_points: int
+    min_keypoints: int
+    device: Literal["cpu", "cuda", "auto"]
+    seed: int
+    divergence_factor: float
+
+    def __post_init__(self) -> None:
+        require(self.profile in self.profiles, f"profile {self.profile!r} is not one of {sorted(self.profiles)}")
+        require(self.min_points >= 0, "min_points must be >= 0")
+        require(self.min_keypoints >= 0, "min_keypoints must be >= 0")
+        require(self.divergence_factor > 1, "divergence_factor must be > 1")
+
+    @property
+    def optimizer(self) -> OptimizerProfile:
+        return self.profiles[self.profile]

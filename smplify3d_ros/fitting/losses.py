@@ -1,0 +1,100 @@
+"""The loss terms of SMPLify-3D (thesis Eq. 3-8), as pure functions on batched tensors.
+
+Every function takes batch-first tensors and returns one value per batch element, shape (B,), so that
+all the people of a frame are optimized together and each keeps its own loss. Priors that belong to a
+body model (L_θ, L_a, L_β) live on `BodyModel`; this module combines them.
+"""
+
+from __future__ import annotations
+
+import roma
+import torch
+
+
+def geman_mcclure(residual: torch.Tensor, sigma: float) -> torch.Tensor:
+    """ρ(x) = σ² x² / (σ² + x²), element-wise (Eq. 3)."""
+    sq = residual**2
+    return sigma**2 * sq / (sigma**2 + sq)
+
+
+def project(points: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """Pinhole projection of (B, N, 3) camera-frame points with (3, 3) or (B, 3, 3) intrinsics -> (B, N, 2).
+
+    The fitting works on undistorted keypoints, so no distortion here (`smplify3d_ros.camera` holds the
+    distorting projection used everywhere else). Depth is clamped to 1 mm to keep gradients finite.
+    """
+    z = points[..., 2:3].clamp(min=1e-3)
+    xy = points[..., :2] / z
+    K = K if K.dim() == 3 else K[None]
+    return xy * torch.stack([K[:, 0, 0], K[:, 1, 1]], -1)[:, None] + K[:, :2, 2][:, None]
+
+
+def hip_center(keypoints: torch.Tensor) -> torch.Tensor:
+    """Midpoint of COCO hips (11, 12): the root used to align 2D keypoints (reference)."""
+    return 0.5 * (keypoints[..., 11, :] + keypoints[..., 12, :])
+
+
+def reprojection_loss(
+    projected: torch.Tensor,
+    target: torch.Tensor,
+    confidence: torch.Tensor,
+    sigma: float,
+    root_aligned: bool = False,
+) -> torch.Tensor:
+    """L_J (Eq. 3): Σ_i c_i² Σ_xy ρ(Π(J_i) − J_est,i), (B, K, 2) pixels and (B, K) confidences.
+
+    With `root_aligned` (Eq. 11-12) the detected keypoints are shifted so that their hip midpoint lies on
+    the projected model's hip midpoint: J_est^algn = J_est + (J_pro,0 − J_est,0).
+    """
+    if root_aligned:
+        target = target + (hip_center(projected) - hip_center(target))[:, None]
+    rho = geman_mcclure(projected - target, sigma).sum(-1)
+    return (confidence**2 * rho).sum(-1)
+
+
+def nearest_sq_distances(
+    source: torch.Tensor, target: torch.Tensor, target_mask: torch.Tensor
+) -> torch.Tensor:
+    """Squared distance from each source point (B, n, 3) to its nearest valid target (B, m, 3).
+
+    The nearest neighbour is searched without gradient on one matrix product (fast for a few thousand
+    points on each side); the distance to it is then recomputed with gradient for both sides.
+    """
+    with torch.no_grad():
+        d2 = (
+            (source**2).sum(-1, keepdim=True)
+            - 2.0 * source @ target.transpose(1, 2)
+            + (target**2).sum(-1)[:, None, :]
+        )
+        d2 = d2.masked_fill(~target_mask[:, None, :], float("inf"))
+        index = d2.argmin(dim=-1)  # (B, n)
+    nearest = torch.gather(target, 1, index[..., None].expand(-1, -1, 3))
+    return ((source - nearest) ** 2).sum(-1)
+
+
+def chamfer_loss(
+    vertices: torch.Tensor, vertex_mask: torch.Tensor, points: torch.Tensor, point_mask: torch.Tensor
+) -> torch.Tensor:
+    """L_3D (Eq. 7): (1/n) Σ_v min_p ||v − p||² + (1/m) Σ_p min_v ||p − v||², in m².
+
+    vertices (B, n, 3) with (B, n) mask of the visible ones; points (B, m, 3) with (B, m) mask. A person
+    with no valid vertex or point gets 0.
+    """
+    has = vertex_mask.any(-1) & point_mask.any(-1)
+    v_to_p = nearest_sq_distances(vertices, points, point_mask)
+    p_to_v = nearest_sq_distances(points, vertices, vertex_mask)
+    n = vertex_mask.sum(-1).clamp(min=1)
+    m = point_mask.sum(-1).clamp(min=1)
+    loss = (v_to_p * vertex_mask).sum(-1) / n + (p_to_v * point_mask).sum(-1) / m
+    return torch.where(has, loss, torch.zeros_like(loss))
+
+
+def occlusion_prior(pose: torch.Tensor, init_pose: torch.Tensor, joint_mask: torch.Tensor) -> torch.Tensor:
+    """L_θocc (Eq. 8): Σ_i (1 − ⟨q_i, q'_i⟩²) over the joints of occluded parts.
+
+    pose, init_pose: (B, J, 3) axis-angle; joint_mask: (B, J) true where the joint drives an occluded
+    part. Squaring the quaternion dot product makes q and −q equal.
+    """
+    q = roma.rotvec_to_unitquat(pose)
+    q0 = roma.rotvec_to_unitquat(init_pose)
+    return ((1.0 - (q * q0).sum(-1) ** 2) * joint_mask).sum(-1)

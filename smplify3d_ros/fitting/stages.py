@@ -1,0 +1,201 @@
+"""The optimizer: SMPLify-3D's single-stage scheme (Eq. 2) and the robust three-stage scheme (Eq. 11-14).
+
+All people of a frame are one batch: each row of every tensor is one person, each person keeps its own
+loss, and a person whose loss turns non-finite or explodes is frozen at its best finite state and
+flagged, without stopping the others.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from smplify3d_ros.body.base import BodyModel
+from smplify3d_ros.fitting import losses
+from smplify3d_ros.fitting.config import LossWeights, OptimizerProfile
+
+PARAM_NAMES = ("shape", "pose", "root_orient", "transl")
+
+
+@dataclass
+class FitState:
+    """Batched body parameters being optimized, (B, ...) each."""
+
+    shape: torch.Tensor
+    pose: torch.Tensor
+    root_orient: torch.Tensor
+    transl: torch.Tensor
+
+    def clone(self) -> FitState:
+        return FitState(*(getattr(self, n).detach().clone() for n in PARAM_NAMES))
+
+    def copy_rows_from(self, other: FitState, rows: torch.Tensor) -> None:
+        with torch.no_grad():
+            for n in PARAM_NAMES:
+                getattr(self, n)[rows] = getattr(other, n)[rows]
+
+
+@dataclass
+class FitProblem:
+    """The batched observations, (B, ...) each; B people of one frame."""
+
+    K: torch.Tensor  # (3, 3) intrinsics of the undistorted image
+    keypoints: torch.Tensor  # (B, 17, 2) px
+    confidence: torch.Tensor  # (B, 17)
+    points: torch.Tensor  # (B, m, 3) the person's LiDAR points (padded)
+    point_mask: torch.Tensor  # (B, m)
+    vertex_index: torch.Tensor  # (B, n) indices of the LiDAR-visible vertices used by L_3D (padded)
+    vertex_mask: torch.Tensor  # (B, n)
+    occluded_joints: torch.Tensor  # (B, J) joints driving image-occluded parts (L_θocc)
+    init_pose: torch.Tensor  # (B, J, 3) the pose L_θocc holds occluded parts to
+    use_lidar: torch.Tensor  # (B,) bool: enough points for the 3D term
+
+
+@dataclass
+class StageSpec:
+    """What one stage optimizes and which terms it uses."""
+
+    name: str
+    params: tuple[str, ...]
+    iterations: int
+    root_aligned: bool  # compare keypoints after hip alignment (Eq. 11-12)
+    sigma_px: float
+    chamfer_weight: float  # λ_3D of this stage (0: no 3D term)
+    priors: bool  # pose, bending, shape and occlusion priors
+    shape_only_prior: bool = False  # stage 1: only L_β beside L_J
+
+
+@dataclass
+class StageReport:
+    iterations: dict[str, int] = field(default_factory=dict)
+    final_loss: torch.Tensor | None = None  # (B,)
+    diverged: torch.Tensor | None = None  # (B,) bool
+
+
+def _w(weight: float, profile: OptimizerProfile) -> float:
+    return weight**2 if profile.square_weights else weight
+
+
+def stage_loss(
+    model: BodyModel, state: FitState, problem: FitProblem, stage: StageSpec, profile: OptimizerProfile
+) -> torch.Tensor:
+    """(B,) total loss of one stage."""
+    weights: LossWeights = profile.weights
+    out = model(state.shape, state.pose, state.root_orient, state.transl)
+    projected = losses.project(out.keypoints, problem.K)
+    loss = losses.reprojection_loss(
+        projected, problem.keypoints, problem.confidence, stage.sigma_px, root_aligned=stage.root_aligned
+    )
+    if stage.priors or stage.shape_only_prior:
+        loss = loss + _w(weights.shape, profile) * model.shape_prior(state.shape)
+    if stage.priors:
+        loss = loss + _w(weights.pose, profile) * model.pose_prior(state.pose)
+        loss = loss + _w(weights.bend, profile) * model.bending_prior(state.pose)
+        loss = loss + _w(weights.occlusion, profile) * losses.occlusion_prior(
+            state.pose, problem.init_pose, problem.occluded_joints
+        )
+    if stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0:
+        visible = torch.gather(out.vertices, 1, problem.vertex_index[..., None].expand(-1, -1, 3))
+        chamfer = losses.chamfer_loss(visible, problem.vertex_mask, problem.points, problem.point_mask)
+        loss = loss + _w(stage.chamfer_weight, profile) * chamfer * problem.use_lidar
+    return loss
+
+
+def run_stage(
+    model: BodyModel,
+    state: FitState,
+    problem: FitProblem,
+    stage: StageSpec,
+    profile: OptimizerProfile,
+    divergence_factor: float,
+    diverged: torch.Tensor,
+) -> tuple[int, torch.Tensor]:
+    """Optimize `stage.params` of `state` in place with Adam; returns (iterations run, final (B,) loss).
+
+    Each person keeps the best finite state the stage reached. `diverged` (B,) is updated in place:
+    a person whose loss becomes non-finite or exceeds `divergence_factor` times its start is frozen.
+    """
+    if stage.iterations == 0:
+        with torch.no_grad():
+            return 0, stage_loss(model, state, problem, stage, profile)
+    tensors = [getattr(state, n) for n in stage.params]
+    for t in tensors:
+        t.requires_grad_(True)
+    optimizer = torch.optim.Adam(tensors, lr=profile.lr, betas=profile.betas)
+    best = state.clone()
+    best_loss = torch.full_like(problem.use_lidar, float("inf"), dtype=state.pose.dtype)
+    start_loss: torch.Tensor | None = None
+    previous_total = None
+    calm = 0
+    iterations = 0
+    for _ in range(stage.iterations):
+        optimizer.zero_grad(set_to_none=True)
+        loss = stage_loss(model, state, problem, stage, profile)
+        detached = loss.detach()
+        if start_loss is None:
+            start_loss = detached.abs().clamp(min=1e-6)
+        bad = ~torch.isfinite(detached) | (detached > divergence_factor * start_loss)
+        diverged |= bad
+        improved = ~diverged & (detached < best_loss)
+        if improved.any():
+            best.copy_rows_from(state, improved)
+            best_loss = torch.where(improved, detached, best_loss)
+        active = ~diverged
+        if not active.any():
+            break
+        torch.where(active, loss, torch.zeros_like(loss)).sum().backward()
+        for t in tensors:  # frozen people get no update at all (Adam's momentum included)
+            if t.grad is not None:
+                t.grad[~active] = 0.0
+        optimizer.step()
+        state.copy_rows_from(best, diverged)
+        iterations += 1
+        total = float(detached[active].sum())
+        if profile.early_stop_rel_tol > 0 and previous_total is not None:
+            if previous_total - total < profile.early_stop_rel_tol * abs(previous_total):
+                calm += 1
+                if calm >= profile.early_stop_patience:
+                    break
+            else:
+                calm = 0
+        previous_total = total
+    for t in tensors:
+        t.requires_grad_(False)
+    with torch.no_grad():
+        final = stage_loss(model, state, problem, stage, profile)
+        worse = ~torch.isfinite(final) | (final > best_loss)
+        state.copy_rows_from(best, worse)
+        final = torch.where(worse, best_loss, final)
+    return iterations, final
+
+
+def stage_plan(profile: OptimizerProfile) -> list[StageSpec]:
+    """The stages of the profile's scheme, with their terms (Eq. 2 or Eq. 11-14)."""
+    w = profile.weights
+    if profile.scheme == "single_stage":
+        return [
+            StageSpec("single", PARAM_NAMES, profile.single_stage_iterations, False, w.sigma_px,
+                      w.chamfer, priors=True),
+        ]
+    n1, n2, n3 = profile.iterations
+    return [
+        StageSpec("scale", ("shape",), n1, True, w.sigma_px, 0.0, priors=False, shape_only_prior=True),
+        StageSpec("mesh", ("pose", "shape", "root_orient"), n2, True, w.sigma_px, w.chamfer, priors=True),
+        StageSpec("image", ("transl",), n3, False, w.sigma_px_final, w.chamfer_final, priors=False),
+    ]
+
+
+def optimize(
+    model: BodyModel, state: FitState, problem: FitProblem, profile: OptimizerProfile, divergence_factor: float
+) -> StageReport:
+    report = StageReport()
+    diverged = torch.zeros_like(problem.use_lidar)
+    final = None
+    for stage in stage_plan(profile):
+        report.iterations[stage.name], final = run_stage(
+            model, state, problem, stage, profile, divergence_factor, diverged
+        )
+    report.final_loss = final
+    report.diverged = diverged
+    return report

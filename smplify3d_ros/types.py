@@ -1,0 +1,111 @@
+"""Data that crosses module boundaries: plain dataclasses of numpy arrays, with units and frames.
+
+Frames: "camera" is the camera optical frame (REP-103: x right, y down, z forward); "lidar" is the
+sensor frame of the LiDAR driver. Units: metres, radians, seconds; pixels for image coordinates.
+Rotations are axis-angle vectors (radians) unless named otherwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class CameraModel:
+    """Pinhole camera with optional lens distortion (ROS CameraInfo conventions)."""
+
+    K: np.ndarray  # (3, 3) float64 intrinsics, pixels
+    width: int  # image width, pixels
+    height: int  # image height, pixels
+    distortion_model: str = ""  # "", "plumb_bob", "rational_polynomial" or "equidistant"
+    dist_coeffs: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (n,) float64, ROS D
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(self.distortion_model) and bool(np.any(self.dist_coeffs != 0.0))
+
+
+@dataclass
+class BodyParams:
+    """Parameters of one body in the camera frame, in one body model's convention.
+
+    `pose` rows follow `BodyModel.joint_names`; each row is an axis-angle rotation (rad) of that joint
+    relative to its parent, expressed in the model's canonical axes (x: body left, y: up, z: forward).
+    `root_orient` rotates the canonical body into the camera frame and `transl` (m) places it there.
+    """
+
+    model: str  # body model name, e.g. "anny" or "smpl"
+    shape: np.ndarray  # (S,) float64: Anny phenotypes in [0, 1], or SMPL betas
+    pose: np.ndarray  # (J, 3) float64 axis-angle per optimized joint, rad
+    root_orient: np.ndarray  # (3,) float64 axis-angle, canonical body -> camera, rad
+    transl: np.ndarray  # (3,) float64, m, camera frame
+
+    def copy(self) -> BodyParams:
+        return BodyParams(
+            self.model, self.shape.copy(), self.pose.copy(), self.root_orient.copy(), self.transl.copy()
+        )
+
+
+@dataclass
+class Frame:
+    """Everything one synchronized set of sensor messages says, before any per-person processing."""
+
+    stamp: float  # s, the image's stamp
+    camera: CameraModel
+    keypoints: np.ndarray  # (P, 17, 3) float64: u, v (px, as detected, i.e. distorted), score in [0, 1]
+    person_ids: np.ndarray  # (P,) int64 track ids, -1 when the detector has none
+    points_lidar: np.ndarray  # (N, 3) float32 LiDAR points in the LiDAR frame, m
+    T_cam_lidar: np.ndarray  # (4, 4) float64 transform taking LiDAR-frame points into the camera frame
+    image: np.ndarray | None = None  # (H, W, 3) uint8 RGB, optional
+    frame_id: str = "camera"  # the camera optical frame's name
+    init_bodies: dict[int, BodyParams] = field(default_factory=dict)  # external estimates by person id
+
+
+@dataclass
+class PersonObservation:
+    """One person as the fitting engine sees them: 2D keypoints and their own LiDAR points."""
+
+    person_id: int
+    keypoints: np.ndarray  # (17, 3) float64: undistorted u, v (px) and score
+    bbox: np.ndarray  # (4,) float64 x_min, y_min, x_max, y_max (px, undistorted)
+    points: np.ndarray  # (M, 3) float32 the person's LiDAR points in the camera frame, m
+    density: float = 0.0  # points per square metre of the body's projected area (thesis Eq. 9)
+    init: BodyParams | None = None  # external initial estimate, if any
+
+
+@dataclass
+class FitQuality:
+    reprojection_px: float  # mean confidence-weighted 2D keypoint error of the final fit, px
+    chamfer_m: float  # mean symmetric nearest-neighbour distance visible mesh <-> points, m (nan if none)
+    num_points: int  # LiDAR points used by the 3D term
+    visible_parts: list[str]  # body parts considered visible to the camera
+    icp_converged: bool  # whether the rigid LiDAR alignment converged
+    final_loss: float  # the last stage's total loss
+
+
+# Flags a BodyFit may carry.
+FLAG_IMAGE_ONLY = "image_only"  # too few LiDAR points: fitted from the keypoints alone
+FLAG_DIVERGED = "diverged"  # a stage produced NaN or an exploding loss: best finite state returned
+FLAG_ICP_NOT_CONVERGED = "icp_not_converged"
+FLAG_EXTERNAL_INIT = "external_init"  # initialized from an upstream estimate
+FLAG_FEW_KEYPOINTS = "few_keypoints"  # too few confident keypoints for a reliable image term
+
+
+@dataclass
+class BodyFit:
+    """The fitted body of one person in one frame (camera frame)."""
+
+    person_id: int
+    params: BodyParams
+    joint_names: list[str]  # names of params.pose rows and of `joints`
+    vertices: np.ndarray  # (V, 3) float32 mesh vertices, m, camera frame
+    keypoints3d: np.ndarray  # (17, 3) float32 COCO-17 3D keypoints, m, camera frame
+    joints: np.ndarray  # (J, 3) float32 model joint positions, m, camera frame
+    quality: FitQuality
+    flags: set[str] = field(default_factory=set)
+
+    @property
+    def model(self) -> str:
+        return self.params.model
