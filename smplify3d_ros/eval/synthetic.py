@@ -17,6 +17,8 @@ from smplify3d_ros.fitting.losses import project
 from smplify3d_ros.fitting.visibility import front_facing
 from smplify3d_ros.types import BodyParams, PersonObservation
 
+LIMB_JOINTS = ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")
+
 
 @dataclass
 class SyntheticPerson:
@@ -86,13 +88,15 @@ def make_person(
 
 def perturb(model: BodyModel, params: BodyParams, rng: np.random.Generator, depth_m: float,
             limb_deg: float) -> BodyParams:
-    """Push the body `depth_m` along its viewing ray (away) and rotate each joint by `limb_deg` about a
-    random axis: the engine's test initial estimate."""
+    """Push the body `depth_m` along its viewing ray (away) and rotate each limb joint (shoulders,
+    elbows, wrists, hips, knees, ankles) by `limb_deg` about a random axis: the engine's test initial
+    estimate."""
     out = params.copy()
     ray = params.transl / np.linalg.norm(params.transl)
     out.transl = params.transl + depth_m * ray
     axes = rng.standard_normal(params.pose.shape)
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    axes[[i for i, n in enumerate(model.joint_names) if n.split("_")[-1] not in LIMB_JOINTS]] = 0.0
     delta = torch.as_tensor(axes * np.deg2rad(limb_deg))
     pose = roma.rotvec_composition([delta, torch.as_tensor(params.pose)])
     out.pose = pose.numpy()

@@ -4,8 +4,9 @@ The thesis aligns the visible vertices to the points. We register the other way 
 (sparse) points onto a voxel map of the (dense) visible vertices, and invert the result: every LiDAR
 point then finds a true surface neighbour, whereas dense vertices matched to sparse points all crowd
 onto the few nearest points. As in the reference, the start is the offset between the centres of the
-two bounding boxes, refined by a few robust translation-only steps. kiss-icp reports no convergence flag, so we judge it ourselves: the inlier fraction
-of the points near the aligned mesh, and the size of one further ICP update.
+two bounding boxes, refined by a few robust translation-only steps. kiss-icp reports no convergence
+flag, so we judge it ourselves: the inlier fraction of the points near the aligned mesh, and the size
+of one further ICP update.
 """
 
 from __future__ import annotations

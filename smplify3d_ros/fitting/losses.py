@@ -60,6 +60,8 @@ def nearest_sq_distances(
     The nearest neighbour is searched without gradient on one matrix product (fast for a few thousand
     points on each side); the distance to it is then recomputed with gradient for both sides.
     """
+    if source.shape[1] == 0 or target.shape[1] == 0:
+        return source.new_zeros(source.shape[:2])
     with torch.no_grad():
         d2 = (
             (source**2).sum(-1, keepdim=True)

@@ -23,6 +23,7 @@ from smplify3d_ros.fitting.config import FittingConfig
 from smplify3d_ros.fitting.icp import align_mesh_to_points
 from smplify3d_ros.fitting.stages import FitProblem, FitState, StageSpec, optimize, run_stage
 from smplify3d_ros.fitting.visibility import occluded_parts, visible_vertices
+from smplify3d_ros.keypoints import PART_NAMES
 from smplify3d_ros.types import (
     FLAG_DIVERGED,
     FLAG_EXTERNAL_INIT,
@@ -36,7 +37,6 @@ from smplify3d_ros.types import (
     Frame,
     PersonObservation,
 )
-from smplify3d_ros.keypoints import PART_NAMES
 
 log = logging.getLogger(__name__)
 

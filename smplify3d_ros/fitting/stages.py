@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from smplify3d_ros.body.base import BodyModel
+from smplify3d_ros.body.base import BodyModel, BodyOutput
 from smplify3d_ros.fitting import losses
 from smplify3d_ros.fitting.config import LossWeights, OptimizerProfile
 
@@ -77,12 +77,28 @@ def _w(weight: float, profile: OptimizerProfile) -> float:
     return weight**2 if profile.square_weights else weight
 
 
+class _Translated:
+    """Stand-in for the body model in a translation-only stage: every model is translation-equivariant
+    (`transl` is added last), so the posed body is computed once and only shifted afterwards."""
+
+    def __init__(self, model: BodyModel, state: FitState) -> None:
+        self.model = model
+        self.transl0 = state.transl.detach().clone()
+        with torch.no_grad():
+            self.base = model(state.shape, state.pose, state.root_orient, state.transl)
+
+    def __call__(self, shape, pose, root_orient, transl) -> BodyOutput:
+        shift = (transl - self.transl0)[:, None]
+        return BodyOutput(self.base.vertices + shift, self.base.joints + shift, self.base.keypoints + shift)
+
+
 def stage_loss(
-    model: BodyModel, state: FitState, problem: FitProblem, stage: StageSpec, profile: OptimizerProfile
+    model: BodyModel, state: FitState, problem: FitProblem, stage: StageSpec, profile: OptimizerProfile,
+    body=None,
 ) -> torch.Tensor:
-    """(B,) total loss of one stage."""
+    """(B,) total loss of one stage. `body` replaces `model`'s forward (see `_Translated`)."""
     weights: LossWeights = profile.weights
-    out = model(state.shape, state.pose, state.root_orient, state.transl)
+    out = (body or model)(state.shape, state.pose, state.root_orient, state.transl)
     projected = losses.project(out.keypoints, problem.K)
     loss = losses.reprojection_loss(
         projected, problem.keypoints, problem.confidence, stage.sigma_px, root_aligned=stage.root_aligned
@@ -119,6 +135,7 @@ def run_stage(
     if stage.iterations == 0:
         with torch.no_grad():
             return 0, stage_loss(model, state, problem, stage, profile)
+    body = _Translated(model, state) if stage.params == ("transl",) else None
     tensors = [getattr(state, n) for n in stage.params]
     for t in tensors:
         t.requires_grad_(True)
@@ -131,7 +148,7 @@ def run_stage(
     iterations = 0
     for _ in range(stage.iterations):
         optimizer.zero_grad(set_to_none=True)
-        loss = stage_loss(model, state, problem, stage, profile)
+        loss = stage_loss(model, state, problem, stage, profile, body)
         detached = loss.detach()
         if start_loss is None:
             start_loss = detached.abs().clamp(min=1e-6)
@@ -163,7 +180,7 @@ def run_stage(
     for t in tensors:
         t.requires_grad_(False)
     with torch.no_grad():
-        final = stage_loss(model, state, problem, stage, profile)
+        final = stage_loss(model, state, problem, stage, profile, body)
         worse = ~torch.isfinite(final) | (final > best_loss)
         state.copy_rows_from(best, worse)
         final = torch.where(worse, best_loss, final)

@@ -1,0 +1,180 @@
+"""Both body-model backends: Anny (embedded) and SMPL through a made-up SMPL-format file."""
+
+import pickle
+import sys
+import types
+
+import numpy as np
+import pytest
+import torch
+
+from smplify3d_ros.body.joints import BODY_JOINTS
+from smplify3d_ros.body.smpl_model import SmplBody, SmplFileError, load_arrays
+from smplify3d_ros.fitting.init import upright_root_orient
+from smplify3d_ros.keypoints import KP, PART_NAMES
+
+
+def _run(model, pose=None, root=None, transl=(0.0, 0.0, 5.0)):
+    dt = model.anat_frames.dtype
+    pose = torch.zeros(1, len(BODY_JOINTS), 3, dtype=dt) if pose is None else pose
+    root = torch.as_tensor(upright_root_orient(0.0) if root is None else root, dtype=dt)[None]
+    with torch.no_grad():
+        return model(model.mean_shape()[None], pose, root, torch.tensor([transl], dtype=dt))
+
+
+def test_anny_upright_facing_camera(anny_model):
+    out = _run(anny_model)
+    kp = out.keypoints[0].numpy()
+    assert kp[KP["nose"], 1] < kp[KP["left_hip"], 1] < kp[KP["left_ankle"], 1]  # head up (y down)
+    assert kp[KP["left_shoulder"], 0] > kp[KP["right_shoulder"], 0]  # facing: left on image right
+    assert kp[KP["nose"], 2] < 5.0  # the face is towards the camera
+    height = kp[:, 1].max() - kp[:, 1].min()
+    assert 1.3 < height < 1.9
+    assert out.vertices.shape == (1, 13718, 3)
+
+
+def test_anny_parts_cover_every_part(anny_model):
+    parts = anny_model.part_of_face.numpy()
+    assert set(parts[parts >= 0]) == set(range(len(PART_NAMES)))
+
+
+def test_anatomical_round_trip_and_knee_flexion(anny_model):
+    angles = torch.zeros(1, len(BODY_JOINTS), 3, dtype=anny_model.anat_frames.dtype)
+    angles[0, BODY_JOINTS.index("left_knee"), 0] = np.pi / 2
+    pose = anny_model.anatomical_to_pose(angles, from_neutral=True)
+    back = anny_model.pose_to_anatomical(pose) + anny_model.anat_rest
+    assert torch.allclose(back, angles + 0 * back, atol=1e-5)
+    out = _run(anny_model, pose=pose, root=np.zeros(3), transl=(0.0, 0.0, 0.0))
+    kp = out.keypoints[0].numpy()  # canonical axes: y up, z forward
+    knee, ankle = kp[KP["left_knee"]], kp[KP["left_ankle"]]
+    assert ankle[2] < knee[2] - 0.25  # a flexed knee sends the foot backwards
+    assert abs(ankle[1] - knee[1]) < 0.1
+
+
+def test_priors_penalise_out_of_range_and_hyperextension(anny_model):
+    dt = anny_model.anat_frames.dtype
+    zero = torch.zeros(1, len(BODY_JOINTS), 3, dtype=dt)
+    assert anny_model.joint_range_prior(zero).item() == 0.0
+    bad = torch.zeros_like(zero)
+    bad[0, BODY_JOINTS.index("left_knee"), 0] = -1.0  # knee bent the wrong way
+    bad_pose = anny_model.anatomical_to_pose(bad)
+    assert anny_model.joint_range_prior(bad_pose).item() > 0.5
+    assert anny_model.bending_prior(bad_pose).item() > anny_model.bending_prior(zero).item()
+    shape = anny_model.mean_shape()[None]
+    assert anny_model.shape_prior(shape).item() == 0.0
+    assert anny_model.shape_prior(shape + 0.7).item() > anny_model.shape_prior(shape + 0.3).item()
+
+
+# -- SMPL through a made-up file ------------------------------------------------------------------
+V_SMALL = 300
+
+
+def _made_up_smpl(rng, n_verts=V_SMALL):
+    """Correct SMPL structure, made-up values: a column of vertices skinned to a 24-joint tree."""
+    parents = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21]
+    joints = rng.normal(0, 0.3, (24, 3))
+    v = rng.normal(0, 0.3, (n_verts, 3))
+    J_reg = np.zeros((24, n_verts))
+    for j in range(24):
+        J_reg[j, rng.choice(n_verts, 5, replace=False)] = 0.2
+    weights = rng.random((n_verts, 24))
+    weights /= weights.sum(1, keepdims=True)
+    faces = np.stack([np.arange(n_verts - 2), np.arange(1, n_verts - 1), np.arange(2, n_verts)], 1)
+    del joints
+    return {
+        "v_template": v,
+        "shapedirs": rng.normal(0, 0.01, (n_verts, 3, 10)),
+        "posedirs": rng.normal(0, 0.001, (n_verts, 3, 207)),
+        "J_regressor": J_reg,
+        "weights": weights,
+        "kintree_table": np.stack([np.array([2**32 - 1] + parents[1:]), np.arange(24)]).astype(np.int64),
+        "f": faces.astype(np.int64),
+    }
+
+
+def _smpl_config(tmp_path, model_path, regressor_path="", gmm_path=""):
+    from smplify3d_ros.fitting.config import BodyConfig
+
+    return BodyConfig("smpl", str(model_path), str(regressor_path), str(gmm_path), 10, 0.25, 100.0)
+
+
+def test_smpl_npz_with_regressor_and_gmm(tmp_path, rng):
+    arrays = _made_up_smpl(rng)
+    np.savez(tmp_path / "smpl.npz", **arrays)
+    reg = rng.random((17, V_SMALL))
+    reg /= reg.sum(1, keepdims=True)
+    np.save(tmp_path / "coco.npy", reg)
+    gmm = {"means": rng.normal(0, 0.1, (8, 69)), "covars": np.stack([np.eye(69) * 0.1] * 8),
+           "weights": np.full(8, 1 / 8)}
+    with open(tmp_path / "gmm.pkl", "wb") as fh:
+        pickle.dump(gmm, fh)
+    model = SmplBody.from_config(_smpl_config(tmp_path, tmp_path / "smpl.npz", tmp_path / "coco.npy",
+                                              tmp_path / "gmm.pkl"))
+    out = _run(model)
+    assert out.vertices.shape == (1, V_SMALL, 3) and out.keypoints.shape == (1, 17, 3)
+    assert torch.isfinite(out.vertices).all()
+    assert torch.allclose(out.keypoints[0], torch.as_tensor(reg, dtype=out.vertices.dtype) @ out.vertices[0],
+                          atol=1e-4)
+    dt = model.anat_frames.dtype
+    zero = torch.zeros(1, 19, 3, dtype=dt)
+    far = torch.full((1, 19, 3), 0.8, dtype=dt)
+    assert model.pose_prior(far).item() > model.pose_prior(zero).item()  # GMM prior is used
+    assert model.gmm is not None
+
+
+def test_smpl_translation_and_rotation_centre(tmp_path, rng):
+    np.savez(tmp_path / "smpl.npz", **_made_up_smpl(rng))
+    np.save(tmp_path / "coco.npy", np.full((17, V_SMALL), 1.0 / V_SMALL))
+    model = SmplBody.from_config(_smpl_config(tmp_path, tmp_path / "smpl.npz", tmp_path / "coco.npy"))
+    a = _run(model, transl=(0.0, 0.0, 0.0)).vertices
+    b = _run(model, transl=(1.0, 2.0, 3.0)).vertices
+    assert torch.allclose(b - a, torch.tensor([1.0, 2.0, 3.0], dtype=a.dtype).expand_as(a), atol=1e-5)
+
+
+def test_smpl_official_pickle_without_chumpy(tmp_path, rng, monkeypatch):
+    """The official .pkl stores arrays as chumpy objects; we load it with chumpy absent."""
+    arrays = _made_up_smpl(rng, n_verts=6890)
+    fake = types.ModuleType("chumpy.ch")
+
+    class Ch:  # what chumpy pickles: an object whose state holds the array in 'x'
+        def __init__(self, x):
+            self.x = x
+
+        def __getstate__(self):
+            return {"x": self.x, "_dirty_vars": set()}
+
+    Ch.__module__, Ch.__qualname__ = "chumpy.ch", "Ch"
+    fake.Ch = Ch
+    monkeypatch.setitem(sys.modules, "chumpy", types.ModuleType("chumpy"))
+    monkeypatch.setitem(sys.modules, "chumpy.ch", fake)
+    data = dict(arrays)
+    data["shapedirs"] = Ch(arrays["shapedirs"])
+    data["v_template"] = Ch(arrays["v_template"])
+    data["bs_style"] = "lbs"
+    with open(tmp_path / "SMPL_NEUTRAL.pkl", "wb") as fh:
+        pickle.dump(data, fh, protocol=2)
+    monkeypatch.delitem(sys.modules, "chumpy")
+    monkeypatch.delitem(sys.modules, "chumpy.ch")
+    loaded = load_arrays(tmp_path / "SMPL_NEUTRAL.pkl")
+    assert np.allclose(loaded["shapedirs"], arrays["shapedirs"])
+    model = SmplBody.from_config(_smpl_config(tmp_path, tmp_path / "SMPL_NEUTRAL.pkl"))
+    out = _run(model)  # documented fallback regressor: fixed face vertices + SMPL joints
+    assert torch.allclose(out.keypoints[0, KP["nose"]], out.vertices[0, 332])
+    pose = torch.full((1, 19, 3), 0.3)
+    assert model.gmm is None and model.pose_prior(pose).item() == model.joint_range_prior(pose).item()
+
+
+def test_smpl_bad_files_raise_clear_errors(tmp_path, rng):
+    with pytest.raises(SmplFileError, match="not found"):
+        load_arrays(tmp_path / "missing.pkl")
+    arrays = _made_up_smpl(rng)
+    del arrays["J_regressor"]
+    np.savez(tmp_path / "broken.npz", **arrays)
+    with pytest.raises(SmplFileError, match="J_regressor"):
+        SmplBody.from_config(_smpl_config(tmp_path, tmp_path / "broken.npz"))
+    np.savez(tmp_path / "small.npz", **_made_up_smpl(rng))
+    with pytest.raises(SmplFileError, match="COCO regressor"):
+        SmplBody.from_config(_smpl_config(tmp_path, tmp_path / "small.npz"))
+    (tmp_path / "evil.pkl").write_bytes(pickle.dumps({"f": __import__("os").getcwd}))
+    with pytest.raises(SmplFileError, match="refusing"):
+        load_arrays(tmp_path / "evil.pkl")
