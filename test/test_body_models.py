@@ -95,7 +95,7 @@ def _made_up_smpl(rng, n_verts=V_SMALL):
 def _smpl_config(tmp_path, model_path, regressor_path="", gmm_path=""):
     from smplify3d_ros.fitting.config import BodyConfig
 
-    return BodyConfig("smpl", str(model_path), str(regressor_path), str(gmm_path), 10, 0.25, 100.0)
+    return BodyConfig("smpl", str(model_path), str(regressor_path), str(gmm_path), 10, 0.25, 64, 100.0)
 
 
 def test_smpl_npz_with_regressor_and_gmm(tmp_path, rng):

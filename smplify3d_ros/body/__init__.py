@@ -25,7 +25,7 @@ def load_body_model(name: str = "anny", config=None, device: str = "cpu") -> Bod
         if name == "anny":
             from smplify3d_ros.body.anny_model import AnnyBody
 
-            model = AnnyBody(config.anny_shape_sigma, config.shape_bound_weight)
+            model = AnnyBody(config.anny_shape_sigma, config.shape_bound_weight, config.anny_keypoint_support)
         elif name == "smpl":
             from smplify3d_ros.body.smpl_model import SmplBody
 

@@ -66,8 +66,15 @@ class BodyModel(torch.nn.Module):
         raise NotImplementedError
 
     def forward(  # noqa: D401 - torch signature
-        self, shape: torch.Tensor, pose: torch.Tensor, root_orient: torch.Tensor, transl: torch.Tensor
+        self,
+        shape: torch.Tensor,
+        pose: torch.Tensor,
+        root_orient: torch.Tensor,
+        transl: torch.Tensor,
+        vertex_index: torch.Tensor | None = None,
     ) -> BodyOutput:
+        """With `vertex_index` (n,), `vertices` holds only those vertices, (B, n, 3): a model may then
+        skip the others (Anny does), which makes optimizer iterations several times cheaper."""
         raise NotImplementedError
 
     # -- anatomical coordinates --------------------------------------------------------------------

@@ -265,7 +265,12 @@ class SmplBody(BodyModel):
         return self.gmm(full[:, 1:].reshape(pose.shape[0], -1))
 
     def forward(
-        self, shape: torch.Tensor, pose: torch.Tensor, root_orient: torch.Tensor, transl: torch.Tensor
+        self,
+        shape: torch.Tensor,
+        pose: torch.Tensor,
+        root_orient: torch.Tensor,
+        transl: torch.Tensor,
+        vertex_index: torch.Tensor | None = None,
     ) -> BodyOutput:
         B = max(shape.shape[0], pose.shape[0])
         shaped = self.v_template + blend_shapes(shape.expand(B, -1), self.shapedirs)
@@ -285,4 +290,6 @@ class SmplBody(BodyModel):
                 keypoints[:, KP[name]] = verts[:, vid]
             for name, jid in FALLBACK_BODY_JOINTS.items():
                 keypoints[:, KP[name]] = joints[:, jid]
+        if vertex_index is not None:
+            verts = verts[:, vertex_index]
         return BodyOutput(verts, joints[:, self.body_index], keypoints)

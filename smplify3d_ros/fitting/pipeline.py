@@ -200,12 +200,16 @@ class Fitter:
                 vertex_rows.append(index if use_lidar[i] else index[:0])
                 pts = p.points[_subsample(len(p.points), cfg.optimizer.chamfer_max_points, rng)]
                 point_rows.append(pts if use_lidar[i] else pts[:0])
-            vidx, vmask = _pad_rows(vertex_rows, 0, 0)
+            subset, positions = np.unique(np.concatenate(vertex_rows + [np.zeros(0, np.int64)]),
+                                          return_inverse=True)
+            splits = np.cumsum([len(r) for r in vertex_rows])[:-1]
+            vidx, vmask = _pad_rows(np.split(positions, splits), 0, 0)
             pts, pmask = _pad_rows(point_rows, 3, 0.0)
             return FitProblem(
                 K=Kt, keypoints=keypoints, confidence=confidence,
                 points=torch.as_tensor(pts, dtype=self.dtype, device=self.device),
                 point_mask=torch.as_tensor(pmask, device=self.device),
+                vertex_subset=torch.as_tensor(subset, dtype=torch.int64, device=self.device),
                 vertex_index=torch.as_tensor(vidx, device=self.device),
                 vertex_mask=torch.as_tensor(vmask, device=self.device),
                 occluded_joints=torch.as_tensor(occluded_joints, dtype=self.dtype, device=self.device),
@@ -267,7 +271,8 @@ class Fitter:
             good = problem.confidence >= self.config.init.keypoint_conf
             weights = problem.confidence * good
             reproj = (err * weights).sum(-1) / weights.sum(-1).clamp(min=1e-9)
-            visible = torch.gather(out.vertices, 1, problem.vertex_index[..., None].expand(-1, -1, 3))
+            subset_vertices = out.vertices[:, problem.vertex_subset]
+            visible = torch.gather(subset_vertices, 1, problem.vertex_index[..., None].expand(-1, -1, 3))
             d_vp = nearest_sq_distances(visible, problem.points, problem.point_mask).sqrt()
             d_pv = nearest_sq_distances(problem.points, visible, problem.vertex_mask).sqrt()
         fits = []

@@ -45,7 +45,8 @@ class FitProblem:
     confidence: torch.Tensor  # (B, 17)
     points: torch.Tensor  # (B, m, 3) the person's LiDAR points (padded)
     point_mask: torch.Tensor  # (B, m)
-    vertex_index: torch.Tensor  # (B, n) indices of the LiDAR-visible vertices used by L_3D (padded)
+    vertex_subset: torch.Tensor  # (s,) every vertex any person's L_3D uses: the only ones posed per step
+    vertex_index: torch.Tensor  # (B, n) each person's L_3D vertices, as positions in `vertex_subset`
     vertex_mask: torch.Tensor  # (B, n)
     occluded_joints: torch.Tensor  # (B, J) joints driving image-occluded parts (L_θocc)
     init_pose: torch.Tensor  # (B, J, 3) the pose L_θocc holds occluded parts to
@@ -81,13 +82,13 @@ class _Translated:
     """Stand-in for the body model in a translation-only stage: every model is translation-equivariant
     (`transl` is added last), so the posed body is computed once and only shifted afterwards."""
 
-    def __init__(self, model: BodyModel, state: FitState) -> None:
+    def __init__(self, model: BodyModel, state: FitState, vertex_subset: torch.Tensor) -> None:
         self.model = model
         self.transl0 = state.transl.detach().clone()
         with torch.no_grad():
-            self.base = model(state.shape, state.pose, state.root_orient, state.transl)
+            self.base = model(state.shape, state.pose, state.root_orient, state.transl, vertex_subset)
 
-    def __call__(self, shape, pose, root_orient, transl) -> BodyOutput:
+    def __call__(self, shape, pose, root_orient, transl, vertex_index=None) -> BodyOutput:
         shift = (transl - self.transl0)[:, None]
         return BodyOutput(self.base.vertices + shift, self.base.joints + shift, self.base.keypoints + shift)
 
@@ -98,7 +99,9 @@ def stage_loss(
 ) -> torch.Tensor:
     """(B,) total loss of one stage. `body` replaces `model`'s forward (see `_Translated`)."""
     weights: LossWeights = profile.weights
-    out = (body or model)(state.shape, state.pose, state.root_orient, state.transl)
+    use_chamfer = stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
+    subset = problem.vertex_subset if use_chamfer else problem.vertex_subset[:0]
+    out = (body or model)(state.shape, state.pose, state.root_orient, state.transl, subset)
     projected = losses.project(out.keypoints, problem.K)
     loss = losses.reprojection_loss(
         projected, problem.keypoints, problem.confidence, stage.sigma_px, root_aligned=stage.root_aligned
@@ -111,7 +114,7 @@ def stage_loss(
         loss = loss + _w(weights.occlusion, profile) * losses.occlusion_prior(
             state.pose, problem.init_pose, problem.occluded_joints
         )
-    if stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0:
+    if use_chamfer:
         visible = torch.gather(out.vertices, 1, problem.vertex_index[..., None].expand(-1, -1, 3))
         chamfer = losses.chamfer_loss(visible, problem.vertex_mask, problem.points, problem.point_mask)
         loss = loss + _w(stage.chamfer_weight, profile) * chamfer * problem.use_lidar
@@ -135,7 +138,7 @@ def run_stage(
     if stage.iterations == 0:
         with torch.no_grad():
             return 0, stage_loss(model, state, problem, stage, profile)
-    body = _Translated(model, state) if stage.params == ("transl",) else None
+    body = _Translated(model, state, problem.vertex_subset) if stage.params == ("transl",) else None
     tensors = [getattr(state, n) for n in stage.params]
     for t in tensors:
         t.requires_grad_(True)

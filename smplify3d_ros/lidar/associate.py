@@ -1,0 +1,365 @@
+"""Steps 2, 5 and 6 of person point extraction: skeleton frusta, cluster selection, conflicts.
+
+Everything is measured in metres at the point's own depth: a point's image distance to a skeleton (in
+normalized image coordinates, i.e. pixels divided by the focal length) times its depth z is how far,
+in metres, it passes beside that skeleton. One `mask_radius_m` thus serves every distance, and a wall
+far behind a person needs to project much closer to the skeleton than the person's own points do.
+
+Selection (step 5). For each person k and cluster j we count the cluster's points inside k's padded
+bbox (`in_box`), in the bbox's surroundings (`in_context`, `context_pad` further out; clustered, never
+assigned), inside k's body mask (`in_mask`: within `mask_radius_m` of a skeleton segment) and inside
+k's mask only (`exclusive`: no other skeleton's mask covers them). Each mask point belongs to the
+body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster j is person k" is
+  (covered parts - refuted parts) x isolation,
+  - covered parts: parts on which j has mask points, counting 1 with an exclusive point and
+    `shared_weight` with only points that another skeleton also covers. Counting parts, not points,
+    makes the score independent of range: a box in front of the legs is closer, hence denser, than
+    the person behind it, but it covers only the legs; the person covers torso, arms and head.
+  - refuted parts: a body hides what is behind it, so the skeleton's core (within `core_radius_m`)
+    shows the body itself or an occluder in front of it, never the background. A part refutes j when
+    its core holds more points of clusters farther than j (by `depth_tolerance_m`) than of j: the
+    occluding box is refuted by the torso and head behind it, and so is a person standing in front
+    of k by k's own visible parts. Only parts wider than the core refute (`refuting_parts`).
+  - isolation: how much j stands out from a surface seen through the bbox, the larger of
+      purity: in_mask / in_box is 1 for a body (it fills its mask, not the bbox around it), and for
+        a wall the fraction of the bbox that the mask covers at the wall's depth (`mask_fraction`,
+        from a grid of `mask_area_samples`^2 pixels), or less where a body shadows the wall;
+      boundedness: in_box / (in_box + in_context) is 1 for an object inside the bbox, and for a
+        wall the bbox's share of bbox + surroundings;
+    each rescaled so that the wall's value is 0 and 1 stays 1. Boundedness rescues a person merged
+    with a prop (a seat, a carried box) whose points leave the mask; purity, a person next to a
+    large object. Isolation keeps a wall from standing in for a person whom the LiDAR does not see
+    (dark clothes, out of range).
+A pair qualifies with a positive score, isolation >= `min_isolation` and a plausible skeleton at the
+cluster's depth (the largest keypoint distance, scaled by the cluster's median depth, at most
+`max_person_extent_m`: rejects background far behind). Pairs are taken greedily by score; each person
+gets one main cluster, and a cluster that is already someone's main is shared only when enough of the
+second person's mask points on it are exclusive (`share_min_exclusive`): two people touching in 3D
+form one cluster, yet each has their own region of it. Further clusters that are nobody's main and
+qualify but for the score join: those within `depth_tolerance_m` of the main cluster's depth (an arm
+or the legs split off by a gap or an occluder), then, transitively, those within
+`body_depth_window_m` in depth that come within `secondary_link_m` of a joined one (knees or arms in
+front of the torso, split off at the body's own depth steps).
+
+Conflicts (step 6). A point goes to the person whose skeleton it projects closest to, among those that
+selected its cluster, whose mask holds it and whose depth window (`body_depth_window_m` around the
+main cluster's median depth) contains it; so each point has at most one owner, and an occluder's points
+inside a farther person's mask stay with the occluder or with nobody.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from smplify3d_ros.keypoints import BODY_PARTS, COCO17_SKELETON, KP, PART_INDEX
+from smplify3d_ros.lidar.config import ExtractionConfig
+from smplify3d_ros.types import CameraModel
+
+# Segments whose neighbourhood is the body: the drawing skeleton, torso diagonals (the belly) and neck
+# lines (nose to shoulders), so that the mask covers the torso and joins the head to it.
+BODY_SEGMENTS: tuple[tuple[int, int], ...] = COCO17_SKELETON + (
+    (KP["left_shoulder"], KP["right_hip"]),
+    (KP["right_shoulder"], KP["left_hip"]),
+    (KP["nose"], KP["left_shoulder"]),
+    (KP["nose"], KP["right_shoulder"]),
+)
+
+
+def _part_of(a: int, b: int) -> int:
+    """The body part a segment belongs to: the part holding both ends, else the part of its start."""
+    both = [PART_INDEX[p] for p, ks in BODY_PARTS.items() if a in ks and b in ks]
+    return both[0] if both else next(PART_INDEX[p] for p, ks in BODY_PARTS.items() if a in ks)
+
+
+SEGMENT_PARTS = np.array([_part_of(a, b) for a, b in BODY_SEGMENTS], dtype=np.int64)
+KEYPOINT_PARTS = np.array([_part_of(i, i) for i in range(len(KP))], dtype=np.int64)  # lone keypoints
+
+
+@dataclass
+class Skeleton:
+    """One person's confident keypoints as line segments, in normalized image coordinates."""
+
+    starts: np.ndarray  # (S, 2) float64 segment starts (zero-length segments for lone keypoints)
+    ends: np.ndarray  # (S, 2) float64 segment ends
+    parts: np.ndarray  # (S,) int64 index in `keypoints.PART_NAMES` of each segment's body part
+    scores: np.ndarray  # (S,) float64 confidence of each segment: the lower of its keypoints' scores
+    bbox: np.ndarray  # (4,) float64 padded keypoint bbox x_min, y_min, x_max, y_max, px, undistorted
+    context: np.ndarray  # (4,) float64 the bbox grown by `context_pad`: its surroundings, same layout
+    extent: float  # largest distance between two confident keypoints, normalized image units
+
+
+def to_normalized(uv: np.ndarray, camera: CameraModel) -> np.ndarray:
+    """(N, 2) undistorted pixels -> normalized image coordinates ((u - cx) / fx, (v - cy) / fy)."""
+    K = camera.K
+    return (np.asarray(uv, dtype=np.float64) - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
+
+
+def person_skeleton(keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig) -> Skeleton | None:
+    """The skeleton of one (17, 3) keypoint set (undistorted px + score), None if too few are confident."""
+    finite = np.all(np.isfinite(keypoints), axis=1)
+    confident = finite & (np.where(finite, keypoints[:, 2], 0.0) >= config.keypoint_min_score)
+    if confident.sum() < config.min_keypoints:
+        return None
+    uv = keypoints[confident, :2].astype(np.float64)
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    size = max(float(np.max(hi - lo)), 1.0)
+    limits = np.array([camera.width - 1.0, camera.height - 1.0])
+
+    def grown(pad: float) -> np.ndarray:
+        return np.concatenate([np.clip(lo - pad, 0.0, limits), np.clip(hi + pad, 0.0, limits)])
+
+    bbox = grown(config.bbox_pad * size)
+    context = grown((config.bbox_pad + config.context_pad) * size)
+    xy = to_normalized(keypoints[:, :2], camera)
+    pairs = np.array(BODY_SEGMENTS)
+    linked = confident[pairs[:, 0]] & confident[pairs[:, 1]]
+    lone = np.flatnonzero(confident)  # every confident keypoint is also a zero-length segment
+    starts = np.concatenate([xy[pairs[linked, 0]], xy[lone]])
+    ends = np.concatenate([xy[pairs[linked, 1]], xy[lone]])
+    parts = np.concatenate([SEGMENT_PARTS[linked], KEYPOINT_PARTS[lone]])
+    score = keypoints[:, 2]
+    scores = np.concatenate([np.minimum(score[pairs[linked, 0]], score[pairs[linked, 1]]), score[lone]])
+    conf_xy = xy[confident]
+    extent = float(np.max(np.linalg.norm(conf_xy[:, None] - conf_xy[None], axis=2)))
+    return Skeleton(starts, ends, parts, scores, bbox, context, extent)
+
+
+def segment_distance(xy: np.ndarray, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """(M,) distance of (M, 2) normalized image points to the nearest skeleton segment, and its index."""
+    ax, ay = skeleton.starts[:, 0], skeleton.starts[:, 1]
+    abx, aby = skeleton.ends[:, 0] - ax, skeleton.ends[:, 1] - ay
+    inv_length2 = 1.0 / np.maximum(abx * abx + aby * aby, 1e-18)
+    px = xy[:, :1] - ax  # (M, S)
+    py = xy[:, 1:] - ay
+    t = np.clip((px * abx + py * aby) * inv_length2, 0.0, 1.0)
+    px -= t * abx
+    py -= t * aby
+    d2 = px * px + py * py
+    nearest = np.argmin(d2, axis=1)
+    return np.sqrt(d2[np.arange(len(xy)), nearest]), nearest
+
+
+def _area(bbox: np.ndarray) -> float:
+    return float(max(bbox[2] - bbox[0], 0.0) * max(bbox[3] - bbox[1], 0.0))
+
+
+def in_bbox(uv: np.ndarray, bbox: np.ndarray) -> np.ndarray:
+    """(N,) bool: pixel inside bbox x_min, y_min, x_max, y_max (NaN is outside)."""
+    with np.errstate(invalid="ignore"):
+        return (uv[:, 0] >= bbox[0]) & (uv[:, 0] <= bbox[2]) & (uv[:, 1] >= bbox[1]) & (uv[:, 1] <= bbox[3])
+
+
+def _grouped_median(groups: np.ndarray, values: np.ndarray, n_groups: int) -> np.ndarray:
+    """(n_groups,) median of `values` per group id (lower median; NaN for empty groups)."""
+    out = np.full(n_groups, np.nan)
+    if len(groups) == 0:
+        return out
+    order = np.lexsort((values, groups))
+    groups, values = groups[order], values[order]
+    starts = np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]])
+    counts = np.diff(np.r_[starts, len(groups)])
+    out[groups[starts]] = values[starts + (counts - 1) // 2]
+    return out
+
+
+def _contradicted_parts(
+    z: np.ndarray, clusters: np.ndarray, parts: np.ndarray, hypotheses: np.ndarray,
+    hypothesis_depth: np.ndarray, own_core: np.ndarray, config: ExtractionConfig,
+) -> np.ndarray:
+    """(H,) for each hypothesis "cluster j is this person": body parts that refute it.
+
+    A body hides what is behind it, so the skeleton's core (points within `core_radius_m`) shows the
+    body itself or an occluder in front of it, never the background. A part refutes hypothesis j when
+    its core holds more points of other clusters farther than j (by `depth_tolerance_m`) than of j.
+    Only `refuting_parts` take part: those wider than the core (torso, head, thighs), since beside a
+    thin forearm the core already shows what is behind it; and only segments whose keypoints score at
+    least `refute_min_score`, since a guessed joint puts the core beside the body.
+    z, clusters, parts: depth, cluster and body part of the person's core points; own_core: (H, parts)
+    core points of each hypothesis cluster per part.
+    """
+    if len(hypotheses) == 0 or len(z) == 0:
+        return np.zeros(len(hypotheses))
+    behind = (z[None, :] > hypothesis_depth[:, None] + config.depth_tolerance_m) & (
+        clusters[None, :] != hypotheses[:, None]
+    )
+    one_hot = np.eye(own_core.shape[1])[parts]  # (n, parts)
+    refuting = np.isin(np.arange(own_core.shape[1]), [PART_INDEX[p] for p in config.refuting_parts])
+    return ((behind.astype(np.float64) @ one_hot > own_core) & refuting).sum(axis=1)
+
+
+def mask_fraction(
+    skeleton: Skeleton, depth: np.ndarray, camera: CameraModel, config: ExtractionConfig
+) -> np.ndarray:
+    """(H,) fraction of the skeleton's bbox that its mask covers for a surface at each depth (m)."""
+    n = config.mask_area_samples
+    x0, y0, x1, y1 = skeleton.bbox
+    u, v = np.meshgrid(np.linspace(x0, x1, n), np.linspace(y0, y1, n))
+    grid = segment_distance(to_normalized(np.column_stack([u.ravel(), v.ravel()]), camera), skeleton)[0]
+    grid.sort()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        limit = np.where(depth > 0, config.mask_radius_m / depth, 0.0)
+    return np.searchsorted(grid, np.nan_to_num(limit), side="right") / len(grid)
+
+
+def _isolation(fraction_in: np.ndarray, uniform_fraction: np.ndarray) -> np.ndarray:
+    """0 where points fall inside a region as often as on a uniform surface, 1 where all do."""
+    return (fraction_in - uniform_fraction) / np.maximum(1.0 - uniform_fraction, 1e-6)
+
+
+def _main_clusters(
+    counts: dict[str, np.ndarray], coverage: np.ndarray, contradicted: np.ndarray,
+    mask_cover: np.ndarray, box_fraction: np.ndarray, depth: np.ndarray, extent: np.ndarray,
+    config: ExtractionConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(P,) main cluster per person (-1: none) and (P, C) bool clusters that may be part of a body.
+
+    counts: (P, C) points of each cluster "in_box", "in_context" (around the box), "in_mask",
+    "exclusive"; coverage: (P, C) weighted count of body parts covered; contradicted: (P, C) parts
+    whose core shows more of something behind the cluster than of the cluster; mask_cover: (P, C)
+    fraction of the bbox the mask covers at the cluster's depth; box_fraction: (P,) the bbox's share
+    of bbox + context; depth: (P, C) median depth of the mask points; extent: (P,) skeleton size.
+    """
+    in_box, in_mask, exclusive = counts["in_box"], counts["in_mask"], counts["exclusive"]
+    n_people, n_clusters = in_mask.shape
+    purity = _isolation(in_mask / np.maximum(in_box, 1), mask_cover)
+    bounded = _isolation(in_box / np.maximum(in_box + counts["in_context"], 1), box_fraction[:, None])
+    isolation = np.maximum(purity, bounded)
+    score = (coverage - contradicted) * isolation
+    with np.errstate(invalid="ignore"):
+        plausible = extent[:, None] * depth <= config.max_person_extent_m
+        body_like = (in_mask > 0) & plausible & (isolation >= config.min_isolation)
+    main = np.full(n_people, -1)
+    owners = np.zeros(n_clusters, dtype=np.int64)
+    people, clusters = np.nonzero(body_like & (score > 0))
+    # Best score first; among equal scores, more mask points first.
+    for i in np.lexsort((-in_mask[people, clusters], -score[people, clusters])):
+        k, j = people[i], clusters[i]
+        if main[k] >= 0:
+            continue
+        if owners[j] > 0 and exclusive[k, j] < config.share_min_exclusive * in_mask[k, j]:
+            continue
+        main[k] = j
+        owners[j] += 1
+    body_like[:, owners > 0] = False  # someone's main cluster is nobody's extra
+    return main, body_like
+
+
+def _grow(
+    seeds: list[int], candidates: np.ndarray, coords: np.ndarray, clusters: np.ndarray,
+    config: ExtractionConfig,
+) -> list[int]:
+    """The seed clusters and the candidate clusters linked to them through gaps <= `secondary_link_m`.
+
+    coords, clusters: clustering-space coordinates and cluster labels of the person's bbox points. A
+    body splits at its own depth steps (knees or arms in front of the torso) into clusters a few
+    decimetres apart; an occluder stands farther away (the linking is transitive, cluster to cluster).
+    """
+    joined = list(seeds)
+    pending = [j for j in candidates.tolist() if j not in joined]
+    while pending:
+        tree = cKDTree(coords[np.isin(clusters, joined)])
+        gap, _ = tree.query(coords, distance_upper_bound=config.secondary_link_m)
+        reached = set(clusters[np.isfinite(gap)].tolist())
+        added = [j for j in pending if j in reached]
+        if not added:
+            break
+        joined += added
+        pending = [j for j in pending if j not in reached]
+    return joined
+
+
+def associate(
+    points: np.ndarray, uv: np.ndarray, coords: np.ndarray, clusters: np.ndarray,
+    skeletons: list[Skeleton | None], camera: CameraModel, config: ExtractionConfig,
+) -> np.ndarray:
+    """(M,) int64 person index of each candidate point (-1: nobody).
+
+    points: (M, 3) camera-frame candidates (ground removed); uv: (M, 2) their undistorted pixels;
+    coords: (M, 3) their clustering-space coordinates (`cluster.scaled_coordinates`); clusters: (M,)
+    cluster labels 0..C-1; skeletons: one per person, None for people without one.
+    """
+    n_people, n_points = len(skeletons), len(points)
+    owner = np.full(n_points, -1, dtype=np.int64)
+    if n_points == 0 or n_people == 0:
+        return owner
+    n_clusters, n_parts = int(clusters.max()) + 1, len(BODY_PARTS)
+    z = points[:, 2].astype(np.float64)
+    xy = to_normalized(uv, camera)
+    box = np.zeros((n_people, n_points), dtype=bool)
+    context = np.zeros((n_people, n_points), dtype=bool)  # around the bbox, not in it
+    box_fraction = np.zeros(n_people)
+    dist = np.full((n_people, n_points), np.inf)  # metres beside the skeleton, at the point's depth
+    part = np.zeros((n_people, n_points), dtype=np.int64)  # body part of the nearest segment
+    sure = np.zeros((n_people, n_points), dtype=bool)  # the nearest segment is confident enough to refute
+    extent = np.full(n_people, np.nan)
+    for k, skeleton in enumerate(skeletons):
+        if skeleton is None:
+            continue
+        box[k] = in_bbox(uv, skeleton.bbox)
+        context[k] = in_bbox(uv, skeleton.context) & ~box[k]
+        box_fraction[k] = _area(skeleton.bbox) / max(_area(skeleton.context), 1e-9)
+        d, nearest = segment_distance(xy[box[k]], skeleton)
+        dist[k, box[k]] = d * z[box[k]]
+        part[k, box[k]] = skeleton.parts[nearest]
+        sure[k, box[k]] = skeleton.scores[nearest] >= config.refute_min_score
+        extent[k] = skeleton.extent
+    mask = dist <= config.mask_radius_m
+    exclusive = mask & (mask.sum(axis=0) == 1)
+    group = np.arange(n_people)[:, None] * n_clusters + clusters[None, :]  # (P, M) person-cluster id
+    size = n_people * n_clusters
+
+    def count(selection: np.ndarray) -> np.ndarray:
+        return np.bincount(group[selection], minlength=size).reshape(n_people, n_clusters)
+
+    def parts_with(selection: np.ndarray) -> np.ndarray:  # (P, C, parts) bool: part has such points
+        ids = group[selection] * n_parts + part[selection]
+        return np.bincount(ids, minlength=size * n_parts).reshape(n_people, n_clusters, n_parts) > 0
+
+    parts_excl, parts_any = parts_with(exclusive), parts_with(mask)
+    coverage = parts_excl.sum(axis=2) + config.shared_weight * (parts_any & ~parts_excl).sum(axis=2)
+    depth = _grouped_median(group[mask], np.broadcast_to(z, mask.shape)[mask], size).reshape(
+        n_people, n_clusters
+    )
+    core = mask & (dist <= config.core_radius_m) & sure
+    own_core = np.bincount(group[core] * n_parts + part[core], minlength=size * n_parts).reshape(
+        n_people, n_clusters, n_parts
+    )
+    contradicted = np.zeros((n_people, n_clusters))
+    fraction = np.zeros((n_people, n_clusters))
+    for k in range(n_people):
+        hypotheses = np.flatnonzero(np.isfinite(depth[k]))
+        if len(hypotheses) == 0:
+            continue
+        contradicted[k, hypotheses] = _contradicted_parts(
+            z[core[k]], clusters[core[k]], part[k, core[k]], hypotheses, depth[k, hypotheses],
+            own_core[k, hypotheses], config,
+        )
+        fraction[k, hypotheses] = mask_fraction(skeletons[k], depth[k, hypotheses], camera, config)
+    counts = {"in_box": count(box), "in_context": count(context), "in_mask": count(mask),
+              "exclusive": count(exclusive)}
+    main, body_like = _main_clusters(
+        counts, coverage, contradicted, fraction, box_fraction, depth, extent, config
+    )
+    chosen = np.zeros((n_people, n_clusters), dtype=bool)
+    reference = np.full(n_people, np.nan)
+    for k in np.flatnonzero(main >= 0):
+        reference[k] = depth[k, main[k]]
+        with np.errstate(invalid="ignore"):
+            near = np.abs(depth[k] - reference[k]) <= config.body_depth_window_m
+        candidates = np.flatnonzero(body_like[k] & near)
+        # Clusters at the main cluster's depth are the body's (an arm split off by a gap); the others
+        # must connect to those.
+        level = np.abs(depth[k, candidates] - reference[k]) <= config.depth_tolerance_m
+        seeds = [int(main[k])] + candidates[level].tolist()
+        chosen[k, _grow(seeds, candidates, coords[box[k]], clusters[box[k]], config)] = True
+    with np.errstate(invalid="ignore"):
+        in_window = np.abs(z[None, :] - reference[:, None]) <= config.body_depth_window_m
+    eligible = mask & in_window & np.take_along_axis(chosen, np.broadcast_to(clusters, mask.shape), axis=1)
+    dist = np.where(eligible, dist, np.inf)
+    nearest = np.argmin(dist, axis=0)
+    has_owner = np.isfinite(dist[nearest, np.arange(n_points)])
+    owner[has_owner] = nearest[has_owner]
+    return owner

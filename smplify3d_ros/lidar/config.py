@@ -1,0 +1,102 @@
+"""Person point extraction parameters (values in params/base/lidar.yaml).
+
+The dataclass declares types and valid ranges only; every value lives in the YAML file with a comment.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from smplify3d_ros.config import require
+from smplify3d_ros.keypoints import PART_NAMES
+
+
+@dataclass
+class ExtractionConfig:
+    """Parameters of `smplify3d_ros.lidar.extract.extract_people` (metres, degrees, pixels)."""
+
+    # Step 1: points the camera can see.
+    min_depth_m: float  # points closer than this along the optical axis are dropped
+    max_range_m: float  # points farther than this from the camera are dropped
+    # Step 2: per-person frustum.
+    keypoint_min_score: float  # keypoints below this confidence are ignored
+    min_keypoints: int  # a person with fewer confident keypoints gets no points
+    bbox_pad: float  # keypoint bbox padding on each side, fraction of its larger side
+    # Step 3: ground removal.
+    ground_max_range_m: float  # only points this close (horizontally) vote for the ground plane
+    ground_ransac_iterations: int  # plane hypotheses per frame
+    ground_ransac_sample: int  # at most this many points score each hypothesis
+    ground_ransac_seed: int  # seed of the hypothesis sampler (results are deterministic)
+    ground_inlier_m: float  # distance to the plane under which a point is a ground inlier
+    ground_max_tilt_deg: float  # largest angle between the ground normal and camera up (-y)
+    ground_camera_height_min_m: float  # the camera is at least this high above a valid ground plane
+    ground_camera_height_max_m: float  # ... and at most this high
+    ground_min_support: int  # less support (inliers - points below): no ground visible, use the height band
+    ground_fallback_camera_height_m: float  # camera height above ground assumed by the height band
+    ground_clearance_m: float  # points lower than this above the ground are ground
+    max_height_m: float  # points higher than this above the ground are not people (ceilings, canopies)
+    # Step 4: clustering.
+    cluster_eps_m: float  # linking distance between points of one cluster (horizontal)
+    cluster_voxel_m: float  # voxel edge of the downsampling that precedes linking
+    vertical_resolution_deg: float  # angle between adjacent LiDAR rings
+    ring_gap_factor: float  # vertical linking distance = max(eps, factor * range * tan(resolution))
+    # Step 5: association of clusters with keypoint sets.
+    mask_radius_m: float  # a point belongs to a body if it projects this close to its skeleton
+    max_person_extent_m: float  # largest plausible distance between two keypoints of one person
+    mask_area_samples: int  # grid side (pixels sampled) for the fraction of the bbox the mask covers
+    context_pad: float  # the bbox's surroundings: this fraction of its larger side further out
+    min_isolation: float  # how much a body stands out from a surface (0: like a wall, 1: fully)
+    shared_weight: float  # weight of mask points another skeleton also covers, in the cluster score
+    share_min_exclusive: float  # fraction of exclusive mask points for two people to share a cluster
+    core_radius_m: float  # points this close to a skeleton are its body or an occluder, not background
+    refuting_parts: list[str]  # body parts (keypoints.BODY_PARTS) wide enough to refute a cluster
+    refute_min_score: float  # only segments whose keypoints score at least this refute a cluster
+    depth_tolerance_m: float  # depth spread of one body: farther is behind it, nearer may join it
+    secondary_link_m: float  # extra clusters join a body across gaps up to this (clustering space)
+    body_depth_window_m: float  # a person's points lie within this depth of its median depth
+    # Output.
+    min_points: int  # fewer points than this: the person is flagged `too_few_points`
+    silhouette_fill: float  # fraction of the full-body bbox that the body covers (density, Eq. 9)
+
+    def __post_init__(self) -> None:
+        require(self.min_depth_m >= 0.0, "min_depth_m must be >= 0")
+        require(self.max_range_m > self.min_depth_m, "max_range_m must be > min_depth_m")
+        require(0.0 <= self.keypoint_min_score <= 1.0, "keypoint_min_score must be in [0, 1]")
+        require(self.min_keypoints >= 1, "min_keypoints must be >= 1")
+        require(0.0 <= self.bbox_pad <= 1.0, "bbox_pad must be in [0, 1]")
+        require(self.ground_max_range_m > 0.0, "ground_max_range_m must be > 0")
+        require(self.ground_ransac_iterations >= 1, "ground_ransac_iterations must be >= 1")
+        require(self.ground_ransac_sample >= 3, "ground_ransac_sample must be >= 3")
+        require(self.ground_ransac_seed >= 0, "ground_ransac_seed must be >= 0")
+        require(self.ground_inlier_m > 0.0, "ground_inlier_m must be > 0")
+        require(0.0 < self.ground_max_tilt_deg < 90.0, "ground_max_tilt_deg must be in (0, 90)")
+        require(
+            0.0 <= self.ground_camera_height_min_m < self.ground_camera_height_max_m,
+            "need 0 <= ground_camera_height_min_m < ground_camera_height_max_m",
+        )
+        require(self.ground_min_support >= 3, "ground_min_support must be >= 3")
+        require(self.ground_fallback_camera_height_m > 0.0, "ground_fallback_camera_height_m must be > 0")
+        require(self.ground_clearance_m >= 0.0, "ground_clearance_m must be >= 0")
+        require(self.max_height_m > self.ground_clearance_m, "max_height_m must be > ground_clearance_m")
+        require(self.cluster_eps_m > 0.0, "cluster_eps_m must be > 0")
+        require(
+            0.0 < self.cluster_voxel_m <= self.cluster_eps_m, "cluster_voxel_m must be in (0, cluster_eps_m]"
+        )
+        require(0.0 < self.vertical_resolution_deg < 90.0, "vertical_resolution_deg must be in (0, 90)")
+        require(self.ring_gap_factor >= 1.0, "ring_gap_factor must be >= 1")
+        require(self.mask_radius_m > 0.0, "mask_radius_m must be > 0")
+        require(0.0 < self.core_radius_m <= self.mask_radius_m, "core_radius_m must be in (0, mask_radius_m]")
+        require(self.max_person_extent_m > 0.0, "max_person_extent_m must be > 0")
+        require(self.mask_area_samples >= 2, "mask_area_samples must be >= 2")
+        require(self.context_pad > 0.0, "context_pad must be > 0")
+        require(0.0 <= self.min_isolation <= 1.0, "min_isolation must be in [0, 1]")
+        require(0.0 <= self.shared_weight <= 1.0, "shared_weight must be in [0, 1]")
+        require(0.0 <= self.share_min_exclusive <= 1.0, "share_min_exclusive must be in [0, 1]")
+        unknown = sorted(set(self.refuting_parts) - set(PART_NAMES))
+        require(not unknown, f"refuting_parts: unknown body parts {unknown}; known: {list(PART_NAMES)}")
+        require(0.0 <= self.refute_min_score <= 1.0, "refute_min_score must be in [0, 1]")
+        require(self.depth_tolerance_m >= 0.0, "depth_tolerance_m must be >= 0")
+        require(self.secondary_link_m >= 0.0, "secondary_link_m must be >= 0")
+        require(self.body_depth_window_m > 0.0, "body_depth_window_m must be > 0")
+        require(self.min_points >= 0, "min_points must be >= 0")
+        require(0.0 < self.silhouette_fill <= 1.0, "silhouette_fill must be in (0, 1]")

@@ -1,0 +1,129 @@
+"""Person point extraction: each person's LiDAR points in a full scan.
+
+`extract_people` reads like the method, one module per step:
+  1. visible points: finite, in front of the camera, within range, projecting into the image;
+  2. skeletons and frusta (`associate.person_skeleton`): each person's confident keypoints, padded bbox
+     and, around it, a context region (its points are clustered but never assigned);
+  3. ground removal (`ground.fit_ground`): one plane per frame, shared by all people;
+  4. clustering (`cluster.euclidean_clusters`) of the non-ground points inside any frustum or context;
+  5. and 6. association (`associate.associate`): which clusters are whose, and one owner per point.
+
+Keypoints must be UNDISTORTED pixels (the caller undistorts detections with
+`camera.undistort_pixels`): points are projected with the ideal pinhole model of the same K
+(`project_points(..., distort=False)`), so both live in one image space. "Inside the image" is tested in
+that space too; for a distorted lens its border differs slightly from the real image's, which matters
+only for points that no keypoint bbox reaches anyway.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from smplify3d_ros.camera import in_image, project_points
+from smplify3d_ros.lidar.associate import associate, in_bbox, person_skeleton
+from smplify3d_ros.lidar.cluster import euclidean_clusters, scaled_coordinates
+from smplify3d_ros.lidar.config import ExtractionConfig
+from smplify3d_ros.lidar.ground import GroundPlane, fit_ground
+from smplify3d_ros.types import CameraModel
+
+
+@dataclass
+class PersonPoints:
+    """One person's LiDAR points, in the order of the keypoint sets given to `extract_people`."""
+
+    indices: np.ndarray  # (M,) int64 indices into the scan given to `extract_people`
+    points: np.ndarray  # (M, 3) float32 the points, camera frame, m
+    num_points: int  # M
+    density: float  # points per m^2 of the body's projected area (thesis Eq. 9); 0.0 without points
+    too_few_points: bool  # M < config.min_points: fit from the image alone
+    bbox: np.ndarray  # (4,) float64 x_min, y_min, x_max, y_max (px, undistorted): the padded keypoint
+    #                   bbox clipped to the image, i.e. an estimate of the full-body box; zeros without one
+
+
+@dataclass
+class ExtractionResult:
+    people: list[PersonPoints]  # one per keypoint set, same order
+    labels: np.ndarray  # (N,) int32 per scan point: index of the person it belongs to, or -1
+    ground: GroundPlane  # the frame's ground plane (or the fallback height band), camera frame
+
+
+def projected_area(bbox: np.ndarray, depth: float, camera: CameraModel, config: ExtractionConfig) -> float:
+    """Area (m^2) of the body's projection on the vertical plane facing the sensor, from its bbox.
+
+    The bbox (the padded keypoint box, an estimate of the full-body box) is scaled to metres at the
+    person's median depth and multiplied by `silhouette_fill`, the fraction of that box a body covers.
+    A standing adult with arms down has a box of about 1.9 m x 0.9 m; with fill 0.4 that is 0.7 m^2,
+    close to a real silhouette. It is a coarse estimate: spread arms enlarge the box more than the
+    body, and a bbox clipped by the image border shrinks it.
+    """
+    width_m = (bbox[2] - bbox[0]) / camera.K[0, 0] * depth
+    height_m = (bbox[3] - bbox[1]) / camera.K[1, 1] * depth
+    return float(max(width_m, 0.0) * max(height_m, 0.0) * config.silhouette_fill)
+
+
+def _person_points(
+    points: np.ndarray, indices: np.ndarray, bbox: np.ndarray, camera: CameraModel, config: ExtractionConfig
+) -> PersonPoints:
+    mine = points[indices]
+    density = 0.0
+    if len(indices) > 0:
+        area = projected_area(bbox, float(np.median(mine[:, 2])), camera, config)
+        density = len(indices) / area if area > 0.0 else 0.0
+    return PersonPoints(
+        indices=indices, points=mine, num_points=len(indices), density=float(density),
+        too_few_points=len(indices) < config.min_points, bbox=bbox,
+    )
+
+
+def extract_people(
+    points_cam: np.ndarray, keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig
+) -> ExtractionResult:
+    """Each person's points in a full scan.
+
+    points_cam: (N, 3) float32 scan in the camera optical frame (x right, y down, z forward), m.
+    keypoints: (P, 17, 3) COCO-17 undistorted u, v (px) and score, one set per person.
+    """
+    points = np.asarray(points_cam, dtype=np.float32).reshape(-1, 3)
+    keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 17, 3)
+    labels = np.full(len(points), -1, dtype=np.int32)
+
+    # 1. Visible points (the depth test first: it halves a 360 deg scan cheaply, and drops NaN depths).
+    with np.errstate(invalid="ignore"):
+        visible = np.flatnonzero(points[:, 2] > config.min_depth_m)
+        ahead = points[visible]
+        ok = np.all(np.isfinite(ahead), axis=1)
+        ok &= np.einsum("ij,ij->i", ahead, ahead) <= config.max_range_m**2
+    visible = visible[ok]
+    uv = project_points(points[visible], camera, distort=False)
+    inside = in_image(uv, camera)
+    visible, uv = visible[inside], uv[inside]
+
+    # 2. Skeletons and their frusta.
+    skeletons = [person_skeleton(kp, camera, config) for kp in keypoints]
+    frustum = np.zeros(len(visible), dtype=bool)
+    for skeleton in skeletons:
+        if skeleton is not None:
+            frustum |= in_bbox(uv, skeleton.context)
+
+    # 3. Ground removal, with a plane fitted to everything the camera sees.
+    ground = fit_ground(points[visible], config)
+    if frustum.any():
+        height = ground.height(points[visible[frustum]])
+        keep = (height > config.ground_clearance_m) & (height <= config.max_height_m)
+        frustum[np.flatnonzero(frustum)[~keep]] = False
+    candidates, cand_uv = visible[frustum], uv[frustum]
+
+    # 4. Clusters; 5 and 6. Association, one owner per point.
+    coords = scaled_coordinates(points[candidates], ground, config)
+    clusters = euclidean_clusters(coords, config)
+    owner = associate(points[candidates], cand_uv, coords, clusters, skeletons, camera, config)
+    labels[candidates] = owner.astype(np.int32)
+
+    people = []
+    for k, skeleton in enumerate(skeletons):
+        indices = candidates[owner == k].astype(np.int64)
+        bbox = skeleton.bbox if skeleton is not None else np.zeros(4)
+        people.append(_person_points(points, indices, bbox, camera, config))
+    return ExtractionResult(people=people, labels=labels, ground=ground)
