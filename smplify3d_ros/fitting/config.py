@@ -138,6 +138,7 @@ class FittingConfig:
     min_points: int
     min_keypoints: int
     device: Literal["cpu", "cuda", "auto"]
+    num_threads: int
     seed: int
     divergence_factor: float
 
@@ -146,6 +147,7 @@ class FittingConfig:
         require(self.min_points >= 0, "min_points must be >= 0")
         require(self.min_keypoints >= 0, "min_keypoints must be >= 0")
         require(self.divergence_factor > 1, "divergence_factor must be > 1")
+        require(self.num_threads >= 0, "num_threads must be >= 0 (0 = leave torch's setting)")
 
     @property
     def optimizer(self) -> OptimizerProfile:

@@ -87,6 +87,10 @@ class Fitter:
 
     def __init__(self, config: FittingConfig, model: BodyModel | None = None) -> None:
         self.config = config
+        if config.num_threads > 0:
+            # per-iteration tensors are small: intra-op threads only add synchronization, and on a busy robot
+            # CPU (drivers, planners) oversubscribed OpenMP threads made fits 10x slower in our measurements
+            torch.set_num_threads(config.num_threads)
         self.device = resolve_device(config.device)
         self.model = model if model is not None else load_body_model(config.body.model, config.body, str(self.device))
         self.dtype = self.model.anat_frames.dtype
