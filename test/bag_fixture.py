@@ -1,0 +1,219 @@
+"""A tiny synthetic Jackal recording for the node and replay tests, written with the msg_adapters writers.
+
+People are posed with the body model (as in `smplify3d_ros.eval.synthetic`), stand on a ground plane in
+front of a wall; the LiDAR sees points sampled on their sensor-facing surfaces, the ground and the wall;
+the detector sees their projected COCO-17 keypoints with pixel noise. Ground truth goes to
+`/ground_truth/bodies` in the `~/bodies` schema plus each body's `vertices`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from msg_adapters import (
+    RosbagsFactory,
+    camera_model_to_msg,
+    fits_to_bodies_json,
+    make_pointcloud2,
+    numpy_to_image,
+    write_keypoints,
+)
+from smplify3d_ros.camera import project_points, transform_points
+from smplify3d_ros.eval.synthetic import default_intrinsics, random_pose
+from smplify3d_ros.fitting.init import upright_root_orient
+from smplify3d_ros.fitting.visibility import front_facing
+from smplify3d_ros.types import BodyFit, BodyParams, CameraModel, FitQuality
+
+T0 = 1_700_000_000.0  # s, stamp of the first frame
+PERIOD = 0.1  # s, 10 Hz
+CAMERA_FRAME, LIDAR_FRAME = "camera_color_optical_frame", "velodyne"
+TOPICS = {
+    "image": "/camera/color/image_raw",
+    "camera_info": "/camera/color/camera_info",
+    "points": "/velodyne_points",
+    "keypoints": "/keypoints",
+    "ground_truth": "/ground_truth/bodies",
+    "tf_static": "/tf_static",
+}
+
+
+@dataclass
+class TruePerson:
+    person_id: int
+    params: BodyParams
+    keypoints3d: np.ndarray  # (17, 3) camera frame
+    vertices: np.ndarray  # (V, 3) camera frame
+
+
+@dataclass
+class FixtureFrame:
+    stamp: float
+    people: list[TruePerson]
+    keypoints: np.ndarray  # (P, 17, 3) detected u, v (distorted px), score
+    points_lidar: np.ndarray  # (N, 3) float32
+
+
+@dataclass
+class FixtureBag:
+    path: Path
+    frames: list[FixtureFrame] = field(default_factory=list)
+    camera: CameraModel | None = None
+
+
+def fixture_camera() -> CameraModel:
+    return CameraModel(default_intrinsics(640, 480, 90.0), 640, 480, "plumb_bob",
+                       np.array([-0.05, 0.06, 0.0, 0.0, -0.02]))
+
+
+def pose_person(model, rng: np.random.Generator, pid: int, lateral: float, distance: float, yaw: float,
+                ground_y: float) -> TruePerson:
+    dt = model.anat_frames.dtype
+    shape = np.clip(0.5 + 0.15 * rng.standard_normal(len(model.shape_names)), 0.1, 0.9)
+    params = BodyParams(model.name, shape, random_pose(model, rng, 0.2), upright_root_orient(yaw),
+                        np.array([lateral, 0.0, distance]))
+    with torch.no_grad():
+        out = model(*(torch.as_tensor(a, dtype=dt)[None] for a in (params.shape, params.pose, params.root_orient,
+                                                                    params.transl)))
+    verts = out.vertices[0].double().numpy()
+    kp3d = out.keypoints[0].double().numpy()
+    dy = ground_y - verts[:, 1].max()  # stand on the ground
+    params.transl = params.transl + [0.0, dy, 0.0]
+    return TruePerson(pid, params, kp3d + [0.0, dy, 0.0], verts + [0.0, dy, 0.0])
+
+
+def surface_points(model, person: TruePerson, sensor: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    faces = model.faces.cpu().numpy()
+    front = front_facing(person.vertices, faces, sensor, 0.0)
+    tri = person.vertices[faces[front]]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    pick = rng.choice(len(tri), size=n, p=area / area.sum())
+    a, b = rng.random((2, n, 1))
+    flip = (a + b) > 1
+    a, b = np.where(flip, 1 - a, a), np.where(flip, 1 - b, b)
+    t = tri[pick]
+    pts = t[:, 0] + a * (t[:, 1] - t[:, 0]) + b * (t[:, 2] - t[:, 0])
+    return pts + 0.01 * rng.standard_normal(pts.shape)
+
+
+def background_points(ground_y: float, rng: np.random.Generator) -> np.ndarray:
+    ground = np.stack([rng.uniform(-8, 8, 2500), np.full(2500, ground_y), rng.uniform(1.0, 14.0, 2500)], 1)
+    wall = np.stack([rng.uniform(-8, 8, 800), ground_y - rng.uniform(0, 3.0, 800), np.full(800, 14.0)], 1)
+    return np.concatenate([ground, wall]) + 0.01 * rng.standard_normal((3300, 3))
+
+
+def make_frames(model, T_cam_lidar: np.ndarray, n_frames: int = 2, n_people: int = 2, seed: int = 0,
+                camera: CameraModel | None = None) -> list[FixtureFrame]:
+    """People walking slowly across, 10 Hz."""
+    rng = np.random.default_rng(seed)
+    camera = camera or fixture_camera()
+    ground_y = 0.45
+    sensor = T_cam_lidar[:3, 3]  # LiDAR origin in the camera frame
+    T_lidar_cam = np.linalg.inv(T_cam_lidar)
+    starts = [(-1.2 + 2.4 * i / max(n_people - 1, 1), 4.0 + 1.5 * i) for i in range(n_people)]
+    yaws = rng.uniform(-0.6, 0.6, n_people)
+    frames = []
+    for k in range(n_frames):
+        people = [pose_person(model, np.random.default_rng(seed * 100 + i), i, x + 0.12 * k, z, yaws[i], ground_y)
+                  for i, (x, z) in enumerate(starts)]
+        kps = []
+        for p in people:
+            uv = project_points(p.keypoints3d, camera)
+            uv = uv + 1.5 * rng.standard_normal(uv.shape)
+            kps.append(np.concatenate([uv, np.full((17, 1), 0.9)], axis=1))
+        cloud = [surface_points(model, p, sensor, 260, rng) for p in people] + [background_points(ground_y, rng)]
+        points_cam = np.concatenate(cloud)
+        frames.append(FixtureFrame(T0 + k * PERIOD, people, np.array(kps),
+                                   transform_points(points_cam, T_lidar_cam).astype(np.float32)))
+    return frames
+
+
+def truth_json(frame: FixtureFrame, joint_names: list[str]) -> str:
+    quality = FitQuality(0.0, 0.0, 0, [], True, 0.0)
+    fits = [BodyFit(p.person_id, p.params, joint_names, p.vertices.astype(np.float32),
+                    p.keypoints3d.astype(np.float32), np.zeros((len(joint_names), 3), np.float32), quality)
+            for p in frame.people]
+    doc = json.loads(fits_to_bodies_json(fits, frame.stamp, CAMERA_FRAME))
+    for body, p in zip(doc["bodies"], frame.people, strict=True):
+        body["vertices"] = np.round(p.vertices, 4).tolist()
+    return json.dumps(doc)
+
+
+def fixture_image(camera: CameraModel, frame: FixtureFrame) -> np.ndarray:
+    image = np.full((camera.height, camera.width, 3), 150, np.uint8)
+    image[camera.height // 2:] = 110
+    for p in frame.people:
+        uv = project_points(p.vertices[::7], camera)
+        ok = np.isfinite(uv).all(axis=1)
+        uv = np.round(uv[ok]).astype(int)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+        image[uv[inside, 1], uv[inside, 0]] = (200, 60, 60)
+    return image
+
+
+def tf_static_msg(factory: RosbagsFactory, T_lidar_cam: np.ndarray, stamp: float):
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(T_lidar_cam[:3, :3]).as_quat()
+    t = T_lidar_cam[:3, 3]
+    transform = factory.make(
+        "geometry_msgs/msg/TransformStamped", header=factory.header(stamp, LIDAR_FRAME),
+        child_frame_id=CAMERA_FRAME,
+        transform=factory.make(
+            "geometry_msgs/msg/Transform",
+            translation=factory.make("geometry_msgs/msg/Vector3", x=t[0], y=t[1], z=t[2]),
+            rotation=factory.make("geometry_msgs/msg/Quaternion", x=q[0], y=q[1], z=q[2], w=q[3])))
+    return factory.make("tf2_msgs/msg/TFMessage", transforms=[transform])
+
+
+def frame_messages(factory, camera: CameraModel, frame: FixtureFrame) -> dict[str, object]:
+    """The sensor messages of one frame (rosbags or rclpy, per the factory)."""
+    ids = np.array([p.person_id for p in frame.people], np.int64)
+    lidar_stamp = frame.stamp + 0.02  # the scan is stamped a little off the image
+    return {
+        "image": numpy_to_image(fixture_image(camera, frame), "rgb8", frame.stamp, CAMERA_FRAME, factory),
+        "camera_info": camera_model_to_msg(camera, frame.stamp, CAMERA_FRAME, factory),
+        "points": make_pointcloud2(lidar_stamp, LIDAR_FRAME, {
+            "x": frame.points_lidar[:, 0], "y": frame.points_lidar[:, 1], "z": frame.points_lidar[:, 2],
+            "intensity": np.full(len(frame.points_lidar), 30.0, np.float32)}, factory),
+        "keypoints": write_keypoints(frame.keypoints, ids, frame.stamp, CAMERA_FRAME, factory),
+    }
+
+
+def write_fixture_bag(path: Path, model, T_cam_lidar: np.ndarray, storage: str = "mcap", n_frames: int = 2,
+                      n_people: int = 2, seed: int = 0, with_tf: bool = True,
+                      frames: list[FixtureFrame] | None = None) -> FixtureBag:
+    """Write a rosbag2 directory (`storage` mcap or sqlite3) and return what it holds."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    factory = RosbagsFactory(store)
+    camera = fixture_camera()
+    frames = frames if frames is not None else make_frames(model, T_cam_lidar, n_frames, n_people, seed, camera)
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    types = {"image": "sensor_msgs/msg/Image", "camera_info": "sensor_msgs/msg/CameraInfo",
+             "points": "sensor_msgs/msg/PointCloud2", "keypoints": "sensor_msgs/msg/PointCloud2",
+             "ground_truth": "std_msgs/msg/String", "tf_static": "tf2_msgs/msg/TFMessage"}
+    with Writer(path, version=9, storage_plugin=plugin) as writer:
+        conns = {name: writer.add_connection(TOPICS[name], t, typestore=store) for name, t in types.items()
+                 if with_tf or name != "tf_static"}
+
+        def write(name: str, msg, t: float) -> None:
+            writer.write(conns[name], int(round(t * 1e9)), store.serialize_cdr(msg, types[name]))
+
+        if with_tf:
+            write("tf_static", tf_static_msg(factory, np.linalg.inv(T_cam_lidar), T0 - 1.0), T0 - 0.5)
+        for frame in frames:
+            msgs = frame_messages(factory, camera, frame)
+            write("image", msgs["image"], frame.stamp + 0.010)
+            write("camera_info", msgs["camera_info"], frame.stamp + 0.011)
+            write("points", msgs["points"], frame.stamp + 0.060)
+            write("keypoints", msgs["keypoints"], frame.stamp + 0.040)
+            truth = store.types["std_msgs/msg/String"](data=truth_json(frame, list(model.joint_names)))
+            write("ground_truth", truth, frame.stamp + 0.012)
+    return FixtureBag(path, frames, camera)

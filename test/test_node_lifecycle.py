@@ -1,0 +1,161 @@
+"""The node's life: parameters from a profile overridden by ROS parameters, start, spin, shut down cleanly."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import node_support
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture()
+def ros():
+    node_support.isolate_ros_graph()
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()
+
+
+def test_parameters_are_declared_with_descriptions_and_profile_values(ros):
+    from smplify3d_ros.node import create_node
+
+    node = create_node({}, fitter=node_support.fitter())
+    try:
+        assert node.get_parameter("params_file").value == "jackal_vlp16"
+        assert node.get_parameter("sync.slop_s").value == pytest.approx(0.06)
+        assert node.get_parameter("topics.points").value == "/velodyne_points"
+        assert list(node.get_parameter("extrinsic.xyz").value) == pytest.approx([0.10, 0.0, -0.15])
+        assert node.get_parameter("fitting.profile").value == "robot"
+        assert node.get_parameter("fitting.body.model").value == "anny"
+        assert node.get_parameter("fitting.device").value == "cpu"
+        descriptor = node.describe_parameter("sync.slop_s")
+        assert "stamp difference" in descriptor.description and descriptor.read_only
+        assert "optimizer profile" in node.describe_parameter("fitting.profile").description
+        names = {name for name, _ in node.get_topic_names_and_types()}
+        assert {"/smplify3d/markers", "/smplify3d/joints", "/smplify3d/body_points", "/smplify3d/people",
+                "/smplify3d/bodies", "/diagnostics"} <= names
+    finally:
+        node.destroy_node()
+
+
+def test_ros_parameters_override_the_profile(ros):
+    from smplify3d_ros.node import create_node
+
+    node = create_node({"params_file": "ouster64", "sync.slop_s": 0.02, "publish.body_points": False,
+                        "topics.compressed_image": "/camera/color/image_raw/compressed", "fitting.profile": "thesis"},
+                       fitter=node_support.fitter())
+    try:
+        cfg = node.config
+        assert cfg.node.topics.points == "/ouster/points", "the profile's value"
+        assert cfg.lidar.vertical_resolution_deg == pytest.approx(0.71)
+        assert cfg.node.sync.slop_s == pytest.approx(0.02), "the ROS parameter's value"
+        assert cfg.fitting.profile == "thesis"
+        names = {name for name, _ in node.get_topic_names_and_types()}
+        assert "/smplify3d/body_points" not in names
+        subscribed = {topic for topic, _ in node.get_subscriber_names_and_types_by_node("smplify3d", "/")}
+        assert "/camera/color/image_raw/compressed" in subscribed and "/ouster/points" in subscribed
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.parametrize("parameters, message", [
+    ({"max_people": 0}, "max_people must be"),
+    ({"sync.slop_s": "fast"}, "sync.slop_s"),
+    ({"fitting.profile": "nope"}, "profile 'nope'"),
+    ({"params_file": "no_such_profile"}, "unknown params profile"),
+])
+def test_bad_parameters_are_configuration_errors(ros, parameters, message):
+    from smplify3d_ros.config import ConfigError
+    from smplify3d_ros.node import create_node
+
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(")):
+        create_node(parameters, fitter=node_support.fitter()).destroy_node()
+
+
+def test_spin_publishes_diagnostics_then_destroys_cleanly():
+    with node_support.running_node({"diagnostics_period_s": 0.1}) as (node, recorder):
+        assert node_support.wait_for(lambda: recorder.count("/diagnostics") >= 2, 10.0)
+        values = recorder.last_diagnostics()
+        assert values["frames_in"] == "0"
+        assert values["queue.dropped_stale"] == "0" and "rate_hz.points" in values
+        status = recorder.messages("/diagnostics")[-1].status[0]
+        assert status.name == "smplify3d: fitting" and node_support.level(status) == 0
+        worker = node._worker
+    assert not worker.is_alive(), "the fitting worker stopped with the node"
+
+
+def _start(args: list[str]) -> subprocess.Popen:
+    env = dict(os.environ)
+    node_support.isolate_ros_graph()
+    env.update({k: os.environ[k] for k in ("ROS_DOMAIN_ID", "RMW_IMPLEMENTATION", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
+    env["PYTHONUNBUFFERED"] = "1"
+    return subprocess.Popen([sys.executable, "-m", "smplify3d_ros.node", "--ros-args", *args], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def _read_until(proc: subprocess.Popen, text: str, timeout: float) -> str:
+    import selectors
+
+    out = ""
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and text not in out:
+        if sel.select(timeout=0.5):
+            line = proc.stdout.readline()
+            if not line:
+                break
+            out += line
+    return out
+
+
+def test_ctrl_c_while_fitting_exits_cleanly_without_traceback(ros):
+    import threading
+
+    from rclpy.executors import SingleThreadedExecutor
+
+    proc = _start(["-p", "diagnostics_period_s:=0.2"])
+    recorder = node_support.Recorder({"image": "/camera/color/image_raw", "camera_info": "/camera/color/camera_info",
+                                      "points": "/velodyne_points", "keypoints": "/keypoints"})
+    executor = SingleThreadedExecutor()
+    executor.add_node(recorder.node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        out = _read_until(proc, "ready:", timeout=120)
+        assert "ready:" in out, out
+        assert recorder.wait_connected(timeout=30)
+        bag = node_support.fixture_bag("mcap")
+        recorder.publish_frame(node_support.frame_at(recorder.factory, bag.camera, bag.frames[0], 1_700_000_000.0))
+        assert node_support.wait_for(lambda: int(recorder.last_diagnostics().get("received.points", "0")) >= 1, 30)
+        proc.send_signal(signal.SIGINT)  # the worker is fitting the frame now
+        rest, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        executor.shutdown()
+        recorder.node.destroy_node()
+    out += rest
+    assert proc.returncode == 0, out
+    assert "Traceback" not in out and "Exception" not in out, out
+
+
+def test_configuration_error_exits_2_with_the_key():
+    proc = _start(["-p", "max_people:=0"])
+    try:
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 2, out
+    assert "max_people must be" in out and "Traceback" not in out

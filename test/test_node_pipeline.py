@@ -1,0 +1,275 @@
+"""The frame pipeline the node and replay share: bad input is a counted drop, never an exception.
+
+The fitting itself is replaced by a stub here (its own tests cover it); these tests are about the wiring:
+conversion, people selection, ids, init bodies, transforms, outputs, counters and diagnostics.
+"""
+
+from __future__ import annotations
+
+import json
+
+import bag_fixture
+import node_support
+import numpy as np
+import pytest
+
+from msg_adapters import RosbagsFactory
+from smplify3d_ros.config import load_config
+from smplify3d_ros.frame_pipeline import (
+    DiagnosticsReporter,
+    FrameMessages,
+    FramePipeline,
+    Transforms,
+    transform_fit,
+)
+from smplify3d_ros.types import BodyFit, BodyParams, FitQuality
+
+FACTORY = RosbagsFactory()
+
+
+class StubModel:
+    name = "stub"
+    joint_names = ("hip", "knee")
+
+
+class StubFitter:
+    """Returns one small fit per person, at the depth of its points (or 3 m)."""
+
+    model = StubModel()
+    faces_np = np.array([[0, 1, 2]])
+
+    def __init__(self) -> None:
+        self.calls: list[list] = []
+
+    def fit(self, people, K, origin):
+        self.calls.append(people)
+        fits = []
+        for p in people:
+            z = float(np.median(p.points[:, 2])) if len(p.points) else 3.0
+            params = BodyParams("stub", np.zeros(1), np.zeros((2, 3)), np.zeros(3), np.array([0.0, 0.0, z]))
+            if p.init is not None:
+                params = p.init.copy()
+            verts = np.array([[0, 0, z], [0.1, 0, z], [0, 0.1, z]], np.float32)
+            fits.append(BodyFit(p.person_id, params, ["hip", "knee"], verts, np.tile([0, 0, z], (17, 1)).astype(
+                np.float32), np.zeros((2, 3), np.float32), FitQuality(1.0, 0.01, len(p.points), [], True, 0.5)))
+        return fits
+
+
+@pytest.fixture()
+def frame():
+    # People posed by the real body model, built once; the pipeline under test uses the stub fitter.
+    return _frames()[0]
+
+
+def _frames():
+    if not hasattr(_frames, "cache"):
+        _frames.cache = bag_fixture.make_frames(node_support.fitter().model,
+                                                node_support.config().node.extrinsic.T_cam_lidar(), 2, 2)
+    return _frames.cache
+
+
+def pipeline(overrides=None) -> FramePipeline:
+    config = load_config(overrides=overrides) if overrides else node_support.config()
+    return FramePipeline(config, FACTORY, fitter=StubFitter())
+
+
+def messages(msgs: dict) -> FrameMessages:
+    return FrameMessages(msgs["camera_info"], msgs["points"], msgs["keypoints"], msgs.get("image"))
+
+
+CAMERA = bag_fixture.fixture_camera()
+T0 = bag_fixture.T0
+
+
+def test_good_frame_fits_every_person_and_builds_all_outputs(frame):
+    p = pipeline()
+    result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    assert result.ok, result.message
+    assert [f.person_id for f in result.fits] == [0, 1]
+    assert set(result.outputs) == {"markers", "joints", "body_points", "people", "bodies"}
+    people = p.fitter.calls[0]
+    assert all(len(person.points) > 100 for person in people), "the LiDAR person extraction ran on the scan"
+    doc = json.loads(result.outputs["bodies"].data)
+    assert doc["stamp"] == {"sec": int(T0), "nanosec": 0}
+    assert doc["frame_id"] == bag_fixture.CAMERA_FRAME
+    assert result.outputs["markers"].markers[0].header.stamp.sec == int(T0)
+    assert p.stats.frames_published == 1 and p.stats.people_fitted == 2
+    assert {"convert", "extract", "fit", "outputs", "total"} <= set(result.latency)
+
+
+@pytest.mark.parametrize("kind", sorted(node_support.BAD_KINDS))
+def test_bad_input_is_a_counted_drop(kind, frame):
+    p = pipeline()
+    first = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    assert first.ok
+    stamp = T0 - 0.3 if kind == "time_backwards" else T0 + 0.1
+    result = p.process(messages(node_support.bad_frame(kind, FACTORY, CAMERA, frame, stamp)))
+    outcome, key = node_support.BAD_KINDS[kind]
+    values = p.diagnostic_values()
+    if outcome == "drop":
+        assert result.drop == key, result.message
+        assert result.message
+        assert not result.outputs
+        assert p.stats.drops[key] == 1
+        assert values[f"drop.{key}"] == 1
+    else:
+        assert result.ok and result.fits == []
+        assert values[key] >= 1
+        deletes = [m for m in result.outputs["markers"].markers if m.action == 2]
+        assert {m.id for m in deletes} == {0, 1}, "people who vanished get DELETE markers"
+    # the pipeline keeps working
+    good = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0 + 0.2)))
+    assert good.ok and len(good.fits) == 2
+
+
+def test_duplicate_stamp_and_clock_reset(frame):
+    p = pipeline()
+    assert p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0))).ok
+    assert p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0))).drop == "duplicate_stamp"
+    back = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0 - 100.0)))
+    assert back.ok, "a jump back beyond sync.time_reset_s is a clock reset, not a drop"
+    assert p.stats.time_resets == 1
+
+
+def test_people_selection_ids_and_limits(frame):
+    p = pipeline({"node": {"max_people": 1}})
+    kp = np.concatenate([frame.keypoints, frame.keypoints[:1], frame.keypoints[:1]])
+    kp[2, :, 2] = 0.0  # no confident keypoint
+    kp[3, 12:, 2] = 0.0  # only 12 confident keypoints: still enough
+    msgs = node_support.frame_at(FACTORY, CAMERA, frame, T0)
+    from msg_adapters import write_keypoints
+
+    msgs["keypoints"] = write_keypoints(kp, np.array([-1, -1, 5, -1]), T0, bag_fixture.CAMERA_FRAME, FACTORY)
+    result = p.process(messages(msgs))
+    assert result.ok
+    assert p.stats.people_dropped["few_keypoints"] == 1
+    assert p.stats.people_dropped["max_people"] == 2
+    assert len(result.fits) == 1
+    # the largest keypoint box is kept (the nearer person, id assigned by the node)
+    assert result.fits[0].person_id >= 0
+
+
+def test_anonymous_people_get_free_ids_left_to_right(frame):
+    p = pipeline()
+    f = p.to_frame(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    import dataclasses
+
+    f = dataclasses.replace(f, person_ids=np.array([-1, 0]))
+    selected = p.select_people(f)
+    assert selected.person_ids.tolist() == [1, 0]
+
+
+def test_init_bodies_matched_by_stamp_and_id(frame):
+    p = pipeline()
+    body = {"id": 1, "model": "stub", "shape": [0.3], "root_orient": [0, 0, 0], "transl": [1.0, 2.0, 3.0],
+            "pose": {"knee": [0.1, 0, 0]}}
+    doc = {"schema": "smplify3d_ros/bodies", "version": 1, "stamp": {"sec": int(T0), "nanosec": 0},
+           "frame_id": bag_fixture.CAMERA_FRAME, "bodies": [body]}
+    assert p.add_init_bodies(json.dumps(doc))
+    assert not p.add_init_bodies("{not json")
+    assert p.stats.init_bodies_dropped["bad_document"] == 1
+    result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    people = p.fitter.calls[-1]
+    assert people[0].init is None and people[1].init is not None
+    assert people[1].init.transl.tolist() == [1.0, 2.0, 3.0]
+    assert result.fits[1].params.transl.tolist() == [1.0, 2.0, 3.0]
+    assert p.stats.init_bodies_used == 1
+    # a document for another stamp is not used
+    later = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0 + 1.0)))
+    assert later.ok and all(person.init is None for person in p.fitter.calls[-1])
+
+
+def test_output_frame_lidar_moves_geometry(frame):
+    p = pipeline({"node": {"output_frame": bag_fixture.LIDAR_FRAME}})
+    p._rotation_center = lambda params: params.transl  # the stub model rotates about its translation
+    result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    assert result.ok and result.frame_id == bag_fixture.LIDAR_FRAME
+    cam = pipeline().process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    T = np.linalg.inv(node_support.config().node.extrinsic.T_cam_lidar())
+    expected = cam.fits[0].vertices @ T[:3, :3].T + T[:3, 3]
+    np.testing.assert_allclose(result.fits[0].vertices, expected, atol=1e-5)
+    assert result.outputs["joints"].header.frame_id == bag_fixture.LIDAR_FRAME
+
+
+def test_output_frame_without_transform_is_a_drop(frame):
+    p = pipeline({"node": {"output_frame": "map"}})
+    result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    assert result.drop == "no_transform"
+
+
+def test_transform_fit_is_rigid():
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", [0.3, -0.2, 1.0]).as_matrix()
+    T[:3, 3] = [1.0, -2.0, 0.5]
+    params = BodyParams("stub", np.zeros(1), np.zeros((1, 3)), np.array([0.1, 0.2, 0.3]), np.array([0.0, 1.0, 4.0]))
+    fit = BodyFit(0, params, ["a"], np.random.default_rng(0).normal(size=(5, 3)).astype(np.float32),
+                  np.zeros((17, 3), np.float32), np.zeros((1, 3), np.float32), FitQuality(0, 0, 0, [], True, 0))
+    moved = transform_fit(fit, T, lambda p: p.transl)
+    np.testing.assert_allclose(moved.vertices, fit.vertices @ T[:3, :3].T + T[:3, 3], atol=1e-5)
+    np.testing.assert_allclose(moved.params.transl, T[:3, :3] @ params.transl + T[:3, 3], atol=1e-9)
+    R = Rotation.from_rotvec(moved.params.root_orient).as_matrix()
+    np.testing.assert_allclose(R, T[:3, :3] @ Rotation.from_rotvec(params.root_orient).as_matrix(), atol=1e-9)
+
+
+def test_transforms_prefers_lookup_then_parameters():
+    ext = node_support.config().node.extrinsic
+    T = np.eye(4)
+    T[0, 3] = 5.0
+    found = Transforms(ext, lambda target, source, stamp: T if (target, source) == ("cam", "lidar") else None)
+    np.testing.assert_array_equal(found.cam_from_lidar("cam", "lidar", None), T)
+    np.testing.assert_allclose(found.cam_from_lidar("cam", "other", None), ext.T_cam_lidar())
+    np.testing.assert_array_equal(Transforms(ext).cam_from_lidar("x", "x", None), np.eye(4))
+
+
+def test_diagnostics_levels(frame):
+    p = pipeline()
+    reporter = DiagnosticsReporter()
+    p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    ok = reporter.message(T0, p.diagnostic_values(), FACTORY).status[0]
+    assert ok.level == 0
+    p.process(messages(node_support.bad_frame("empty_cloud", FACTORY, CAMERA, frame, T0 + 0.1)))
+    warn = reporter.message(T0, p.diagnostic_values(), FACTORY).status[0]
+    assert warn.level == 1 and "1 frame(s) dropped" in warn.message
+    values = {kv.key: kv.value for kv in warn.values}
+    assert values["drop.empty_cloud"] == "1" and "latency_ms.fit.mean" in values
+    assert reporter.message(T0, p.diagnostic_values(), FACTORY).status[0].level == 0, "per period"
+
+
+def test_fit_exception_is_a_counted_error(frame):
+    p = pipeline()
+
+    def boom(*args):
+        raise RuntimeError("kaboom")
+
+    p.fitter.fit = boom
+    result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    assert result.drop == "fit_error" and "kaboom" in result.message
+    assert DiagnosticsReporter().message(T0, p.diagnostic_values(), FACTORY).status[0].level == 2
+
+
+def test_unexpected_exception_is_an_internal_error_drop(frame):
+    p = pipeline()
+
+    def broken(*args):
+        raise KeyError("surprise")
+
+    p.outputs = broken
+    result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    assert result.drop == "internal_error" and "surprise" in result.message and result.outputs == {}
+    status = DiagnosticsReporter().message(T0, p.diagnostic_values(), FACTORY).status[0]
+    assert status.level == 2
+
+
+def test_rate_limited_logging_works_with_the_rclpy_logger(frame):
+    """rclpy's logger refuses two severities from one call site: each severity logs from its own line."""
+    rclpy_logging = pytest.importorskip("rclpy.logging")
+    p = FramePipeline(node_support.config(), FACTORY, fitter=StubFitter(),
+                      log=rclpy_logging.get_logger("smplify3d_pipeline_test"))
+    p.process(messages(node_support.bad_frame("out_of_image", FACTORY, CAMERA, frame, T0)))  # info
+    p.process(messages(node_support.bad_frame("empty_cloud", FACTORY, CAMERA, frame, T0 + 0.1)))  # warning
+    p.fitter.fit = lambda *a: (_ for _ in ()).throw(RuntimeError("x"))
+    result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0 + 0.2)))  # error
+    assert result.drop == "fit_error"
+    assert p.stats.drops["internal_error"] == 0

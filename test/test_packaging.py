@@ -1,0 +1,161 @@
+"""Packaging: package.xml, setup.py (a wheel really holds what colcon installs), launch file, profiles, RViz."""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import re
+import shutil
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+
+import pytest
+import yaml
+
+import smplify3d_ros
+
+REPO = Path(__file__).resolve().parent.parent
+PACKAGE = "smplify3d_ros"
+
+
+def test_package_xml_is_format_3_ament_python_with_the_runtime_dependencies():
+    root = ET.parse(REPO / "package.xml").getroot()
+    assert root.tag == "package" and root.get("format") == "3"
+    assert root.findtext("name") == PACKAGE
+    assert root.findtext("version") == smplify3d_ros.__version__
+    assert root.find("export/build_type").text == "ament_python"
+    assert root.findtext("buildtool_depend") == "ament_python"
+    assert root.findtext("license") and root.findtext("maintainer") and root.findtext("description").strip()
+    depends = {e.text for e in root.findall("exec_depend")}
+    required = {"rclpy", "std_msgs", "sensor_msgs", "geometry_msgs", "visualization_msgs", "diagnostic_msgs",
+                "builtin_interfaces", "rcl_interfaces", "tf2_ros", "launch_ros", "python3-numpy",
+                "python3-opencv", "python3-yaml", "python3-scipy"}
+    assert required <= depends, required - depends
+    # every message package the code builds messages from is a dependency
+    used = set()
+    for path in [*(REPO / "msg_adapters").glob("*.py"), *(REPO / PACKAGE).glob("*.py")]:
+        used |= set(re.findall(r'"([a-z_]+_msgs|builtin_interfaces)/(?:msg/)?[A-Z]\w+"', path.read_text()))
+    assert used <= depends, used - depends
+
+
+def test_setup_py_declares_entry_points_packages_and_data():
+    tree = ast.parse((REPO / "setup.py").read_text())
+    text = (REPO / "setup.py").read_text()
+    assert "smplify3d_node = smplify3d_ros.node:main" in text
+    assert "smplify3d = smplify3d_ros.cli:main" in text
+    assert any(isinstance(n, ast.Call) and getattr(n.func, "id", "") == "setup" for n in ast.walk(tree))
+    assert (REPO / "resource" / PACKAGE).exists()
+    cfg = (REPO / "setup.cfg").read_text()
+    assert "script_dir=$base/lib/smplify3d_ros" in cfg and "install_scripts=$base/lib/smplify3d_ros" in cfg
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> zipfile.ZipFile:
+    """Build the wheel from a copy of the sources (the checkout stays clean)."""
+    src = tmp_path_factory.mktemp("src")
+    for name in ("setup.py", "setup.cfg", "package.xml", "README.md"):
+        if (REPO / name).exists():
+            shutil.copy(REPO / name, src / name)
+    for name in ("resource", "params", "launch", "rviz", PACKAGE, "msg_adapters"):
+        shutil.copytree(REPO / name, src / name, ignore=shutil.ignore_patterns("__pycache__"))
+    out = tmp_path_factory.mktemp("dist")
+    proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+                           "-w", str(out), str(src)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    (path,) = out.glob("smplify3d_ros-*.whl")
+    return zipfile.ZipFile(path)
+
+
+def test_wheel_holds_packages_entry_points_and_share_files(wheel):
+    names = set(wheel.namelist())
+    assert "smplify3d_ros/node.py" in names and "smplify3d_ros/replay.py" in names
+    assert "smplify3d_ros/fitting/pipeline.py" in names and "msg_adapters/pointcloud2.py" in names
+    assert "msg_adapters/BODIES_SCHEMA.md" in names
+    data = f"smplify3d_ros-{smplify3d_ros.__version__}.data/data/"
+    share = f"{data}share/{PACKAGE}/"
+    expected = [f"{data}share/ament_index/resource_index/packages/{PACKAGE}", f"{share}package.xml",
+                f"{share}launch/smplify3d.launch.py", f"{share}rviz/smplify3d.rviz"]
+    expected += [f"{share}params/{p.name}" for p in (REPO / "params").glob("*.yaml")]
+    expected += [f"{share}params/base/{p.name}" for p in (REPO / "params" / "base").glob("*.yaml")]
+    missing = [e for e in expected if e not in names]
+    assert not missing, missing
+    (entry_points,) = [n for n in names if n.endswith(".dist-info/entry_points.txt")]
+    text = wheel.read(entry_points).decode()
+    assert "smplify3d_node = smplify3d_ros.node:main" in text and "smplify3d = smplify3d_ros.cli:main" in text
+
+
+def _launch_source() -> str:
+    return (REPO / "launch" / "smplify3d.launch.py").read_text()
+
+
+def test_launch_file_compiles_and_its_arguments_are_node_parameters():
+    from smplify3d_ros.config import load_config
+    from smplify3d_ros.node import parameter_defaults
+
+    source = _launch_source()
+    tree = ast.parse(source)
+    compile(source, "smplify3d.launch.py", "exec")
+    assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description" for n in tree.body)
+    arguments = next(ast.literal_eval(n.value) for n in tree.body
+                     if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", "") == "ARGUMENTS")
+    parameters = parameter_defaults(load_config())
+    for _, name, _ in arguments:
+        assert name in parameters, f"launch argument sets unknown parameter {name!r}"
+    assert 'executable="smplify3d_node"' in source and 'package=PACKAGE' in source
+
+
+@pytest.mark.skipif(importlib.util.find_spec("launch_ros") is None, reason="launch_ros not installed")
+def test_launch_file_loads_with_ros_launch():  # pragma: no cover - needs a full ROS install
+    from launch.launch_description_sources import PythonLaunchDescriptionSource
+
+    from launch import LaunchDescription
+
+    source = PythonLaunchDescriptionSource(str(REPO / "launch" / "smplify3d.launch.py"))
+    description = source.try_get_launch_description_without_context()
+    assert isinstance(description, LaunchDescription)
+    names = {a.name for a in description.get_launch_arguments()}
+    assert {"params_file", "points", "image", "rviz"} <= names
+
+
+def test_profiles_load_and_node_yaml_documents_every_key():
+    from smplify3d_ros.config import load_config, params_dir
+    from smplify3d_ros.node import yaml_comments
+
+    for path in sorted(params_dir().glob("*.yaml")):
+        load_config(path.stem)  # raises on unknown keys or bad values
+    for name in ("jackal_vlp16", "ouster64", "humanm3"):
+        assert (params_dir() / f"{name}.yaml").exists()
+    base = yaml.safe_load((params_dir() / "base" / "node.yaml").read_text())
+    comments = yaml_comments(params_dir() / "base" / "node.yaml")
+
+    def leaves(d, prefix=""):
+        for k, v in d.items():
+            if isinstance(v, dict):
+                yield from leaves(v, f"{prefix}{k}.")
+            else:
+                yield f"{prefix}{k}"
+
+    undocumented = [key for key in leaves(base) if not comments.get(key)]
+    assert not undocumented, undocumented
+
+
+def test_node_config_has_no_defaults():
+    import dataclasses
+
+    from smplify3d_ros import node_config
+
+    for cls in (node_config.NodeConfig, node_config.TopicsConfig, node_config.SyncConfig,
+                node_config.ExtrinsicConfig, node_config.PublishConfig):
+        for f in dataclasses.fields(cls):
+            assert f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING, (cls, f.name)
+
+
+def test_rviz_config_shows_the_outputs():
+    rviz = yaml.safe_load((REPO / "rviz" / "smplify3d.rviz").read_text())
+    displays = rviz["Visualization Manager"]["Displays"]
+    topics = {d["Topic"]["Value"] for d in displays if isinstance(d.get("Topic"), dict)}
+    assert {"/smplify3d/markers", "/smplify3d/joints", "/smplify3d/people", "/smplify3d/body_points"} <= topics
+    assert rviz["Visualization Manager"]["Global Options"]["Fixed Frame"] == "camera_color_optical_frame"
