@@ -109,9 +109,8 @@ def test_launch_file_compiles_and_its_arguments_are_node_parameters():
 
 @pytest.mark.skipif(importlib.util.find_spec("launch_ros") is None, reason="launch_ros not installed")
 def test_launch_file_loads_with_ros_launch():  # pragma: no cover - needs a full ROS install
-    from launch.launch_description_sources import PythonLaunchDescriptionSource
-
     from launch import LaunchDescription
+    from launch.launch_description_sources import PythonLaunchDescriptionSource
 
     source = PythonLaunchDescriptionSource(str(REPO / "launch" / "smplify3d.launch.py"))
     description = source.try_get_launch_description_without_context()
