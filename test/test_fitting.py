@@ -7,6 +7,11 @@ from smplify3d_ros.eval.synthetic import default_intrinsics, make_person, pertur
 from smplify3d_ros.fitting.pipeline import FitOptions, Fitter
 from smplify3d_ros.types import FLAG_DIVERGED, FLAG_EXTERNAL_INIT, FLAG_IMAGE_ONLY
 
+# The issue's synthetic person has its LiDAR points sampled uniformly over the visible surface, for which
+# Eq. 7's chamfer is unbiased: the method as published (the `thesis` profile). The `robot` profile is tuned
+# for ring-scanning LiDARs (see params/base/fitting.yaml) and is measured by `smplify3d bench`.
+PROFILE = "thesis"
+
 
 def _mpjpe_mm(fit, person) -> float:
     return 1000.0 * float(np.linalg.norm(fit.joints - person.joints, axis=1).mean())
@@ -26,7 +31,7 @@ def _people(model, n, seed):
 
 
 def test_three_stage_beats_icp_only_on_synthetic_people(anny_model):
-    fitter = Fitter(load_config().fitting, anny_model)  # the default (robot) profile
+    fitter = Fitter(load_config(overrides={"fitting": {"profile": PROFILE}}).fitting, anny_model)
     icp_errors, fit_errors = [], []
     for seed in (7, 21):  # six people, fitted three at a time
         people, K = _people(anny_model, 3, seed=seed)

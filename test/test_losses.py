@@ -90,3 +90,15 @@ def test_nearest_sq_distances_matches_brute_force(rng):
     got = losses.nearest_sq_distances(src, dst, mask)
     brute = ((src[0, :, None] - dst[0, None]) ** 2).sum(-1).min(-1).values
     assert np.allclose(got[0].numpy(), brute.numpy())
+
+
+def test_chamfer_vertex_weight_scales_only_the_vertex_half():
+    verts = torch.tensor([[[0.0, 0, 0], [1.0, 0, 0]]])
+    pts = torch.tensor([[[0.0, 0, 0.1]]])
+    vmask = torch.ones(1, 2, dtype=torch.bool)
+    pmask = torch.ones(1, 1, dtype=torch.bool)
+    # v->p: (0.01 + 1.01) / 2 = 0.51; p->v: 0.01
+    full = losses.chamfer_loss(verts, vmask, pts, pmask)
+    points_only = losses.chamfer_loss(verts, vmask, pts, pmask, vertex_weight=0.0)
+    assert math.isclose(full.item(), 0.52, rel_tol=1e-5)
+    assert math.isclose(points_only.item(), 0.01, rel_tol=1e-4)

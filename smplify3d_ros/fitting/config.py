@@ -41,6 +41,7 @@ class VisibilityConfig:
 @dataclass
 class IcpConfig:
     enabled: bool
+    estimate_rotation: bool
     max_iterations: int
     convergence_criterion: float
     max_correspondence_distance: float
@@ -93,11 +94,12 @@ class LossWeights:
     chamfer: float  # λ_3D in stage 2 (and single-stage)
     chamfer_final: float  # λ_3D in stage 3
     occlusion: float  # λ_θocc
+    init_pose: float  # the same prior on the joints of *visible* parts (0 in the thesis)
     sigma_px: float  # Geman-McClure σ, stages 1-2 (and single-stage)
     sigma_px_final: float  # Geman-McClure σ, stage 3
 
     def __post_init__(self) -> None:
-        for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "occlusion"):
+        for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "occlusion", "init_pose"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(self.sigma_px > 0 and self.sigma_px_final > 0, "sigma_px values must be > 0")
 
@@ -114,6 +116,7 @@ class OptimizerProfile:
     early_stop_patience: int
     chamfer_max_vertices: int
     chamfer_max_points: int
+    chamfer_vertex_weight: float
     square_weights: bool
     weights: LossWeights
 
@@ -123,6 +126,7 @@ class OptimizerProfile:
         require(self.single_stage_iterations >= 0, "single_stage_iterations must be >= 0")
         require(self.early_stop_rel_tol >= 0, "early_stop_rel_tol must be >= 0")
         require(self.early_stop_patience > 0, "early_stop_patience must be > 0")
+        require(0.0 <= self.chamfer_vertex_weight <= 1.0, "chamfer_vertex_weight must be in [0, 1]")
         require(self.chamfer_max_vertices >= 0 and self.chamfer_max_points >= 0,
                 "chamfer_max_vertices / chamfer_max_points must be >= 0 (0 = all)")
 

@@ -40,6 +40,30 @@ def _inverse(T: np.ndarray) -> np.ndarray:
     return inv
 
 
+def _inlier_fraction(moved_vertices: np.ndarray, points: np.ndarray, config: IcpConfig) -> float:
+    dist, _ = cKDTree(moved_vertices).query(points, k=1, distance_upper_bound=2 * config.kernel)
+    return float(np.isfinite(dist).mean())
+
+
+def _prealign(tree: cKDTree, vertices: np.ndarray, points: np.ndarray, start: np.ndarray,
+              config: IcpConfig) -> np.ndarray:
+    """Offset to add to the points so that they lie on the vertices (robust translation steps)."""
+    shift = start.copy()
+    for _ in range(config.prealign_iterations):
+        _, nearest = tree.query(points + shift, k=1)
+        shift = shift + np.median(vertices[nearest] - (points + shift), axis=0)
+    return shift
+
+
+def _translation_result(vertices, points, shift, origin, config: IcpConfig) -> IcpResult:
+    """The robust translation-only alignment as the result (`estimate_rotation: false`)."""
+    T = np.eye(4)
+    T[:3, 3] = -shift
+    inliers = _inlier_fraction(vertices - shift, points, config)
+    converged = inliers >= config.min_inlier_fraction and np.linalg.norm(shift) <= config.max_translation
+    return IcpResult(T, bool(converged), inliers, -shift)
+
+
 def align_mesh_to_points(vertices: np.ndarray, points: np.ndarray, config: IcpConfig) -> IcpResult:
     """Rigid transform moving `vertices` (n, 3) (the visible ones) onto `points` (m, 3)."""
     if len(vertices) == 0 or len(points) == 0:
@@ -49,13 +73,18 @@ def align_mesh_to_points(vertices: np.ndarray, points: np.ndarray, config: IcpCo
     origin = _bbox_center(np.asarray(points, dtype=np.float64))
     vertices = np.asarray(vertices, dtype=np.float64) - origin
     points = np.asarray(points, dtype=np.float64) - origin
-    # Translation-only pre-alignment (robust: median of point-to-mesh offsets) before the rigid ICP: the
-    # bounding-box centres are biased by the limbs, and a wrong start lets ICP trade depth for rotation.
+    # Translation-only pre-alignment (robust: median of point-to-mesh offsets) before the rigid ICP, from
+    # two starts: the reference's bounding-box offset, and no offset. The boxes differ whenever the scan
+    # covers only part of the body (a VLP-16 puts a few rings on a person), so the first start can be
+    # worse than the initial estimate itself; the start whose result has more inliers wins.
     tree = cKDTree(vertices)
-    shift = _bbox_center(vertices) - _bbox_center(points)
-    for _ in range(config.prealign_iterations):
-        _, nearest = tree.query(points + shift, k=1)
-        shift = shift + np.median(vertices[nearest] - (points + shift), axis=0)
+    shift = max(
+        (_prealign(tree, vertices, points, start, config) for start in (_bbox_center(vertices) - _bbox_center(points),
+                                                                         np.zeros(3))),
+        key=lambda s: _inlier_fraction(vertices - s, points, config),
+    )
+    if not config.estimate_rotation:
+        return _translation_result(vertices, points, shift, origin, config)
     mesh_map = VoxelHashMap(config.voxel_size, max_distance=1e6, max_points_per_voxel=config.max_points_per_voxel)
     mesh_map.add_points(vertices)
     # points -> mesh; start from the bbox centre offset (mesh centre minus point centre)
@@ -71,8 +100,7 @@ def align_mesh_to_points(vertices: np.ndarray, points: np.ndarray, config: IcpCo
     step = np.linalg.norm(one_more[:3, 3] - T_pm[:3, 3]) + np.linalg.norm(one_more[:3, :3] - T_pm[:3, :3])
     T_local = _inverse(T_pm)
     moved = vertices @ T_local[:3, :3].T + T_local[:3, 3]
-    dist, _ = cKDTree(moved).query(points, k=1, distance_upper_bound=2 * config.kernel)
-    inliers = float(np.isfinite(dist).mean())
+    inliers = _inlier_fraction(moved, points, config)
     converged = bool(
         step < 10 * config.convergence_criterion
         and inliers >= config.min_inlier_fraction

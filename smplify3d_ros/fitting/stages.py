@@ -114,9 +114,14 @@ def stage_loss(
         loss = loss + _w(weights.occlusion, profile) * losses.occlusion_prior(
             state.pose, problem.init_pose, problem.occluded_joints
         )
+        if weights.init_pose > 0:
+            loss = loss + _w(weights.init_pose, profile) * losses.occlusion_prior(
+                state.pose, problem.init_pose, 1.0 - problem.occluded_joints
+            )
     if use_chamfer:
         visible = torch.gather(out.vertices, 1, problem.vertex_index[..., None].expand(-1, -1, 3))
-        chamfer = losses.chamfer_loss(visible, problem.vertex_mask, problem.points, problem.point_mask)
+        chamfer = losses.chamfer_loss(visible, problem.vertex_mask, problem.points, problem.point_mask,
+                                      profile.chamfer_vertex_weight)
         loss = loss + _w(stage.chamfer_weight, profile) * chamfer * problem.use_lidar
     return loss
 
