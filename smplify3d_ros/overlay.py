@@ -60,3 +60,38 @@ def overlay_image(frame: Frame, fits: list[BodyFit], faces: np.ndarray, alpha: f
             cv2.putText(canvas, f"id {fit.person_id}", (int(x), max(int(y) - 6, 12)), cv2.FONT_HERSHEY_SIMPLEX,
                         0.5, (255, 255, 255), 1, cv2.LINE_AA)
     return canvas
+
+
+def top_view(frame: Frame, fits: list[BodyFit], height: int, margin_m: float = 1.5, min_depth_m: float = 4.0,
+             ground_clearance_m: float = 0.15) -> np.ndarray:
+    """A bird's-eye view (camera frame, x right, z forward; square, `height` px) of the fitted bodies
+    (their colours) and the LiDAR scan above the ground (white), with the camera's field of view."""
+    from smplify3d_ros.camera import transform_points
+
+    size = height
+    canvas = np.full((size, size, 3), 30, np.uint8)
+    depth = max([float(np.asarray(f.vertices)[:, 2].max()) for f in fits] + [min_depth_m]) + margin_m
+    scale = size / depth  # pixels per metre
+
+    def to_px(x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        return np.stack([size / 2 + x * scale, size - 1 - z * scale], axis=1).round().astype(np.int32)
+
+    cam = frame.camera
+    half_fov = np.arctan2(cam.width / 2, cam.K[0, 0])
+    for sign in (-1, 1):
+        end = to_px(np.array([sign * depth * np.tan(half_fov)]), np.array([depth]))[0]
+        cv2.line(canvas, (size // 2, size - 1), tuple(int(c) for c in end), (90, 90, 90), 1, cv2.LINE_AA)
+    points = transform_points(np.asarray(frame.points_lidar, np.float64), frame.T_cam_lidar)
+    ground_y = max([float(np.asarray(f.vertices)[:, 1].max()) for f in fits], default=np.inf)
+    keep = (points[:, 2] > 0) & (points[:, 2] < depth) & (points[:, 1] < ground_y - ground_clearance_m)
+    for fit in fits:
+        verts = np.asarray(fit.vertices, np.float64)[::4]
+        color = tuple(int(c * 255) for c in person_color(fit.person_id))
+        for u, v in to_px(verts[:, 0], verts[:, 2]):
+            if 0 <= u < size and 0 <= v < size:
+                canvas[v, u] = color
+    for u, v in to_px(points[keep, 0], points[keep, 2]):  # the scan on top, so the bodies' points show
+        cv2.circle(canvas, (int(u), int(v)), 1, (235, 235, 235), -1)
+    cv2.putText(canvas, f"top view, {depth:.0f} m", (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (220, 220, 220), 1,
+                cv2.LINE_AA)
+    return canvas

@@ -535,7 +535,7 @@ def _fill_summary(summary: ReplaySummary, pipeline: FramePipeline, sync: Approxi
 def _write_png(path: Path, best: Any, pipeline: FramePipeline) -> str | None:
     import cv2
 
-    from smplify3d_ros.overlay import overlay_image
+    from smplify3d_ros.overlay import overlay_image, top_view
 
     if best is None:
         pipeline.log.warning(f"no fitted frame: {path} not written")
@@ -545,6 +545,7 @@ def _write_png(path: Path, best: Any, pipeline: FramePipeline) -> str | None:
         pipeline.log.warning("output_frame is not the camera frame: the overlay needs camera-frame fits")
         return None
     image = overlay_image(frame, fits, pipeline.fitter.faces_np)
+    image = np.hstack([image, top_view(frame, fits, image.shape[0])])
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
         raise ReplayError(f"could not write {path}")
