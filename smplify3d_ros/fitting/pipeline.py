@@ -95,6 +95,10 @@ class Fitter:
         self.model = model if model is not None else load_body_model(config.body.model, config.body, str(self.device))
         self.dtype = self.model.anat_frames.dtype
         self.faces_np = self.model.faces.cpu().numpy()
+        # the built-in initializer starts from the anatomical neutral (standing, arms hanging, limbs
+        # straight), not from the model's rest pose (Anny's is an A-pose with bent elbows)
+        zeros = torch.zeros(1, len(self.model.joint_names), 3, dtype=self.model.anat_frames.dtype)
+        self._neutral_pose = self.model.anatomical_to_pose(zeros, from_neutral=True)[0].cpu().double().numpy()
         self.part_of_face_np = self.model.part_of_face.cpu().numpy()
 
     # -- helpers -------------------------------------------------------------------------------------
@@ -161,7 +165,7 @@ class Fitter:
                                 p.person_id, p.init.model, self.model.name)
                 root, pelvis = initializer.builtin_root(p, K, cfg.init, bool(use_lidar[i]))
                 mean = self.model.mean_shape().cpu().numpy()
-                params.append(BodyParams(self.model.name, mean, np.zeros((J, 3)), root, pelvis))
+                params.append(BodyParams(self.model.name, mean, self._neutral_pose.copy(), root, pelvis))
                 builtin.append(i)
         state = self._state(params)
         if builtin:  # place the pelvis: the model's rotation centre may not be its pelvis (SMPL)
