@@ -102,12 +102,16 @@ def test_output_mcap_is_standard_mcap():
 def test_png_shows_the_fit_over_the_image(storage):
     summary = node_support.replayed(storage)
     assert summary.png is not None
-    image = cv2.imread(summary.png)
+    picture = cv2.imread(summary.png)
     camera = bag_fixture.fixture_camera()
-    assert image.shape == (camera.height, camera.width, 3)
+    # the camera image with the fit drawn over it, then a square bird's-eye view of the same height
+    assert picture.shape == (camera.height, camera.width + camera.height, 3)
+    image, top = picture[:, : camera.width], picture[:, camera.width :]
     plain = bag_fixture.fixture_image(camera, node_support.fixture_bag(storage).frames[0])[:, :, ::-1]
     changed = np.any(image != plain, axis=2).mean()
     assert 0.01 < changed < 0.5, "the bodies cover part of the image"
+    coloured = (top.max(axis=2) - top.min(axis=2)) > 40  # the body's colour, on grey and white
+    assert coloured.sum() > 20, "the top view shows the fitted body"
 
 
 def test_cli_runs_on_a_bag_file_and_prints_the_summary(capsys, tmp_path):
