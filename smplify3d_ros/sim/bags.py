@@ -18,6 +18,7 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -134,8 +135,7 @@ def truth_document(sim: Any, stamp_ns: int, frame_id: str, joint_names: list[str
                 "lidar_points": n_points,
             }
         )
-    doc = json.loads(fits_to_bodies_json(fits, stamp_ns * 1e-9, frame_id))
-    doc["stamp"] = _stamp_dict(stamp_ns)
+    doc = json.loads(fits_to_bodies_json(fits, _stamp(stamp_ns), frame_id))
     for body, extra in zip(doc["bodies"], extras, strict=True):
         body.update(extra)
     return json.dumps(doc, separators=(",", ":"))
@@ -174,14 +174,13 @@ def hmr_document(sim: Any, model: Any, stamp_ns: int, frame_id: str) -> str:
                 quality,
             )
         )
-    doc = json.loads(fits_to_bodies_json(fits, stamp_ns * 1e-9, frame_id))
-    doc["stamp"] = _stamp_dict(stamp_ns)
-    return json.dumps(doc, separators=(",", ":"))
+    return fits_to_bodies_json(fits, _stamp(stamp_ns), frame_id)
 
 
-def _stamp_dict(stamp_ns: int) -> dict[str, int]:
+def _stamp(stamp_ns: int) -> SimpleNamespace:
+    """A stamp-like object (`sec`, `nanosec`): keeps nanoseconds exact where float seconds would not."""
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    return {"sec": sec, "nanosec": nanosec}
+    return SimpleNamespace(sec=sec, nanosec=nanosec)
 
 
 def parse_truth_document(text: str | bytes) -> tuple[int, str, list[GroundTruthBody]]:
