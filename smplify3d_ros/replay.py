@@ -322,6 +322,7 @@ class BagWriter:
                 shutil.rmtree(output)
             else:
                 output.unlink()
+        output.parent.mkdir(parents=True, exist_ok=True)
         if self.single_file:  # rosbags writes a directory; keep its .mcap file only
             self._tmp = Path(tempfile.mkdtemp(prefix=".replay-", dir=output.parent))
             self.bag_dir = self._tmp / output.stem

@@ -119,12 +119,13 @@ def test_cli_runs_on_a_bag_file_and_prints_the_summary(capsys, tmp_path):
     replay.add_arguments(parser)
     bag = node_support.fixture_bag("sqlite3")
     db3 = next(bag.path.glob("*.db3"))  # a bare .db3 file, without the bag's metadata
-    args = parser.parse_args([str(db3), "-o", str(tmp_path / "out"), "--max-frames", "1", "--no-progress"])
+    out_dir = tmp_path / "not" / "yet" / "there" / "out"  # missing parents are created
+    args = parser.parse_args([str(db3), "-o", str(out_dir), "--max-frames", "1", "--no-progress"])
     assert replay.run(args) == 0
     out = capsys.readouterr().out
     assert "1 synchronized frames, 1 published, 1 people fitted" in out
     assert "MPJPE" in out
-    assert (tmp_path / "out" / "metadata.yaml").exists(), "a name without .mcap gives a bag directory"
+    assert (out_dir / "metadata.yaml").exists(), "a name without .mcap gives a bag directory"
 
 
 def test_cli_errors_are_messages_not_tracebacks(capsys, tmp_path):
