@@ -72,7 +72,16 @@ PERSON_OUT_OF_IMAGE = "out_of_image"
 PERSON_MAX_PEOPLE = "max_people"
 
 STAGES = ("convert", "extract", "fit", "outputs", "total")
-OUTPUTS = ("markers", "joints", "body_points", "people", "bodies")
+NODE_NAME = "smplify3d"
+# Output name -> message type; the node publishes each on ~/<name>, replay records it as /smplify3d/<name>.
+OUTPUT_TYPES = {
+    "markers": "visualization_msgs/msg/MarkerArray",
+    "joints": "sensor_msgs/msg/PointCloud2",
+    "body_points": "sensor_msgs/msg/PointCloud2",
+    "people": "geometry_msgs/msg/PoseArray",
+    "bodies": "std_msgs/msg/String",
+}
+OUTPUTS = tuple(OUTPUT_TYPES)
 _LOG_EVERY_S = 5.0  # each drop reason is logged at most this often (with the count in between)
 
 

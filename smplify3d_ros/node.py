@@ -28,6 +28,8 @@ from rclpy.node import Node
 from msg_adapters.factory import RclpyFactory
 from smplify3d_ros.config import Config, ConfigError, load_config, params_dir, resolve_profile, to_dict
 from smplify3d_ros.frame_pipeline import (
+    NODE_NAME,
+    OUTPUT_TYPES,
     OUTPUTS,
     DiagnosticsReporter,
     FrameMessages,
@@ -36,15 +38,7 @@ from smplify3d_ros.frame_pipeline import (
 )
 from smplify3d_ros.sync import ApproximateTimeSync
 
-NODE_NAME = "smplify3d"
 FITTING_PARAMETERS = ("fitting.body.model", "fitting.profile", "fitting.device")
-OUTPUT_TYPES = {
-    "markers": "visualization_msgs/msg/MarkerArray",
-    "joints": "sensor_msgs/msg/PointCloud2",
-    "body_points": "sensor_msgs/msg/PointCloud2",
-    "people": "geometry_msgs/msg/PoseArray",
-    "bodies": "std_msgs/msg/String",
-}
 
 
 # -- parameters -------------------------------------------------------------------------------------------

@@ -29,6 +29,8 @@ import numpy as np
 
 from smplify3d_ros.eval import metrics
 from smplify3d_ros.frame_pipeline import (
+    NODE_NAME,
+    OUTPUT_TYPES,
     OUTPUTS,
     DiagnosticsReporter,
     FrameMessages,
@@ -38,15 +40,7 @@ from smplify3d_ros.frame_pipeline import (
 )
 from smplify3d_ros.sync import ApproximateTimeSync
 
-NODE_NAME = "smplify3d"
 OUTPUT_TOPICS = {name: f"/{NODE_NAME}/{name}" for name in OUTPUTS}
-OUTPUT_TYPES = {
-    "markers": "visualization_msgs/msg/MarkerArray",
-    "joints": "sensor_msgs/msg/PointCloud2",
-    "body_points": "sensor_msgs/msg/PointCloud2",
-    "people": "geometry_msgs/msg/PoseArray",
-    "bodies": "std_msgs/msg/String",
-}
 DIAGNOSTICS_TOPIC = "/diagnostics"
 GROUND_TRUTH_TOPIC = "/ground_truth/bodies"
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")

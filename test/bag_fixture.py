@@ -24,7 +24,7 @@ from msg_adapters import (
     write_keypoints,
 )
 from smplify3d_ros.camera import project_points, transform_points
-from smplify3d_ros.eval.synthetic import default_intrinsics, random_pose
+from smplify3d_ros.eval.synthetic import default_intrinsics, random_pose, sample_surface
 from smplify3d_ros.fitting.init import upright_root_orient
 from smplify3d_ros.fitting.visibility import front_facing
 from smplify3d_ros.types import BodyFit, BodyParams, CameraModel, FitQuality
@@ -89,15 +89,7 @@ def pose_person(model, rng: np.random.Generator, pid: int, lateral: float, dista
 def surface_points(model, person: TruePerson, sensor: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     faces = model.faces.cpu().numpy()
     front = front_facing(person.vertices, faces, sensor, 0.0)
-    tri = person.vertices[faces[front]]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    pick = rng.choice(len(tri), size=n, p=area / area.sum())
-    a, b = rng.random((2, n, 1))
-    flip = (a + b) > 1
-    a, b = np.where(flip, 1 - a, a), np.where(flip, 1 - b, b)
-    t = tri[pick]
-    pts = t[:, 0] + a * (t[:, 1] - t[:, 0]) + b * (t[:, 2] - t[:, 0])
-    return pts + 0.01 * rng.standard_normal(pts.shape)
+    return sample_surface(person.vertices, faces[front], n, 0.01, rng)
 
 
 def background_points(ground_y: float, rng: np.random.Generator) -> np.ndarray:

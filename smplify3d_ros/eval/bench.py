@@ -384,21 +384,22 @@ def _pyplot():
 
 
 def plot_methods(rows: Sequence[dict[str, Any]], path: Path, title: str) -> Path:
-    """Grouped bars: PVE, MPJPE, PA-MPJPE per method."""
+    """Grouped bars: PVE, MPJPE (mean and median), PA-MPJPE per method."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(9, 4.5))
-    keys = [("pve_mm", "PVE"), ("mpjpe_mm", "MPJPE"), ("pa_mpjpe_mm", "PA-MPJPE")]
+    keys = [("pve_mm", "PVE"), ("mpjpe_mm", "MPJPE"), ("mpjpe_median_mm", "MPJPE median"),
+            ("pa_mpjpe_mm", "PA-MPJPE")]  # fmt: skip
     x = np.arange(len(rows))
     width = 0.8 / len(keys)
     for k, (key, label) in enumerate(keys):
         values = [r[key] if r[key] is not None else np.nan for r in rows]
-        bars = ax.bar(x + (k - 1) * width, values, width, label=label)
+        bars = ax.bar(x + (k - (len(keys) - 1) / 2) * width, values, width, label=label)
         ax.bar_label(bars, fmt="%.0f", fontsize=7)
     ax.set_xticks(x, [METHODS[r["method"]].label or r["method"] for r in rows], rotation=20, ha="right")
     ax.set_ylabel("error (mm)")
     ax.set_yscale("log")
-    ax.set_title(title)
-    ax.legend()
+    ax.set_title(title, pad=28)
+    ax.legend(ncol=len(keys), fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
     ax.grid(axis="y", alpha=0.3)
     return _save(fig, path)
 
@@ -467,6 +468,8 @@ def plot_density(cases: Sequence[Case], path: Path, title: str) -> Path:
                 xs, ys = _binned(pick, key, edges)
                 ax.plot(xs, ys, style, label=label, alpha=0.9 if style == "o-" else 0.5)
     axes[0].set_xscale("log")
+    for ax in axes:
+        ax.set_yscale("log")
     axes[0].set_xlabel("LiDAR density on the person (points / m², Eq. 9)")
     axes[1].set_xlabel("distance (m)")
     for ax in axes:

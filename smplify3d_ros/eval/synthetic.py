@@ -43,6 +43,20 @@ def random_pose(model: BodyModel, rng: np.random.Generator, spread: float) -> np
     return model.anatomical_to_pose(torch.as_tensor(angles)[None].to(model.anat_frames.dtype))[0].double().numpy()
 
 
+def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, noise: float,
+                   rng: np.random.Generator) -> np.ndarray:
+    """`n` points uniformly over the area of the triangles `faces`, plus isotropic Gaussian noise (m)."""
+    tri = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    pick = rng.choice(len(tri), size=n, p=area / area.sum())
+    a, b = rng.random((2, n, 1))
+    flip = (a + b) > 1  # fold the unit square onto the triangle
+    a, b = np.where(flip, 1 - a, a), np.where(flip, 1 - b, b)
+    t = tri[pick]
+    points = t[:, 0] + a * (t[:, 1] - t[:, 0]) + b * (t[:, 2] - t[:, 0])
+    return points + noise * rng.standard_normal(points.shape)
+
+
 def make_person(
     model: BodyModel,
     rng: np.random.Generator,
@@ -71,15 +85,7 @@ def make_person(
     verts = out.vertices[0].double().numpy()
     faces = model.faces.cpu().numpy()
     front = front_facing(verts, faces, np.zeros(3), 0.0) & (model.part_of_face.cpu().numpy() >= 0)
-    tri = verts[faces[front]]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    pick = rng.choice(len(tri), size=n_points, p=area / area.sum())
-    a, b = rng.random((2, n_points, 1))
-    flip = (a + b) > 1
-    a, b = np.where(flip, 1 - a, a), np.where(flip, 1 - b, b)
-    t = tri[pick]
-    points = t[:, 0] + a * (t[:, 1] - t[:, 0]) + b * (t[:, 2] - t[:, 0])
-    points += point_noise * rng.standard_normal(points.shape)
+    points = sample_surface(verts, faces[front], n_points, point_noise, rng)
     kp = np.concatenate([uv + keypoint_noise_px * rng.standard_normal(uv.shape), np.ones((len(uv), 1))], 1)
     bbox = np.array([*kp[:, :2].min(0), *kp[:, :2].max(0)])
     obs = PersonObservation(person_id, kp, bbox, points.astype(np.float32))
