@@ -102,3 +102,18 @@ def test_divergence_returns_best_finite_state_and_flags(anny_model):
 def test_no_people_gives_no_fits(anny_model):
     cfg = load_config()
     assert Fitter(cfg.fitting, anny_model).fit([], default_intrinsics()) == []
+
+
+def test_a_few_points_still_fix_the_depth_of_an_image_only_person(anny_model):
+    cfg = load_config()
+    fitter = Fitter(cfg.fitting, anny_model)
+    people, K = _people(anny_model, 1, seed=17)
+    person = people[0]
+    obs = person.observation
+    obs.points = obs.points[: cfg.fitting.min_points - 2]  # too few for L_3D, enough for the depth
+    assert len(obs.points) >= cfg.fitting.min_points_depth
+    obs.init = perturb(anny_model, person.truth, np.random.default_rng(0), depth_m=1.5, limb_deg=0.0)
+    fit = fitter.fit([obs], K)[0]
+    assert FLAG_IMAGE_ONLY in fit.flags
+    depth_error = abs(fit.params.transl[2] - person.truth.transl[2])
+    assert depth_error < 0.3, depth_error  # the image alone would keep the 1.5 m error

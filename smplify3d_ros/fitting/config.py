@@ -140,6 +140,7 @@ class FittingConfig:
     icp: IcpConfig
     init: InitConfig
     min_points: int
+    min_points_depth: int
     min_keypoints: int
     device: Literal["cpu", "cuda", "auto"]
     num_threads: int
@@ -149,6 +150,7 @@ class FittingConfig:
     def __post_init__(self) -> None:
         require(self.profile in self.profiles, f"profile {self.profile!r} is not one of {sorted(self.profiles)}")
         require(self.min_points >= 0, "min_points must be >= 0")
+        require(self.min_points_depth >= 1, "min_points_depth must be >= 1")
         require(self.min_keypoints >= 0, "min_keypoints must be >= 0")
         require(self.divergence_factor > 1, "divergence_factor must be > 1")
         require(self.num_threads >= 0, "num_threads must be >= 0 (0 = leave torch's setting)")

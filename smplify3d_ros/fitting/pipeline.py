@@ -8,6 +8,7 @@ or a list of `PersonObservation` already in the camera frame.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 
@@ -243,8 +244,15 @@ class Fitter:
         if options.use_icp and cfg.icp.enabled:
             verts = self._forward(state).vertices.cpu().numpy()
             masks = visible_masks(verts)
+            translation_only = dataclasses.replace(cfg.icp, estimate_rotation=False)
             for i, p in enumerate(people):
                 if not use_lidar[i]:
+                    # too few points for L_3D, but enough to fix the depth along the ray, which the image
+                    # cannot (an image HMR's depth errors reach metres)
+                    if len(p.points) >= cfg.min_points_depth:
+                        result = align_mesh_to_points(verts[i][masks[i]], p.points, translation_only)
+                        if result.converged:
+                            self._apply_rigid(state, i, result.T)
                     continue
                 result = align_mesh_to_points(verts[i][masks[i]], p.points, cfg.icp)
                 icp_ok[i] = result.converged
@@ -318,8 +326,6 @@ class Fitter:
 
 
 def _refine_profile(cfg: FittingConfig):
-    import dataclasses
-
     opt = cfg.optimizer
     weights = dataclasses.replace(opt.weights, pose=cfg.init.refine_pose_weight)
     return dataclasses.replace(opt, lr=cfg.init.refine_lr, weights=weights, early_stop_rel_tol=0.0)
