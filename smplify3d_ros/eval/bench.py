@@ -626,6 +626,7 @@ def run_study(args: argparse.Namespace, setup_for: Callable[..., Setup]) -> Repo
             )
     elif study == "density":
         distance = (2.0, 20.0) if args.distance_given is None else args.distance
+        args.distance = distance  # for the JSON's meta
         for s in SENSOR_LABELS:
             part = run_scenes(
                 setup_for(s), s, seeds, STUDY_METHODS, args.people, distance, progress=args.progress
@@ -843,8 +844,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def code_version() -> str:
-    """The commit of the working tree; with uncommitted changes to tracked files, "-dirty-" and a hash
-    of the diff (two runs with equal strings ran the same code)."""
+    """The commit of the working tree; with uncommitted changes to the code or parameters, "-dirty-" and
+    a hash of that diff (two runs with equal strings ran the same code)."""
     import hashlib
     import subprocess
 
@@ -853,7 +854,10 @@ def code_version() -> str:
         commit = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, check=True
         ).stdout.strip()
-        diff = subprocess.run(["git", "diff", "HEAD"], cwd=root, capture_output=True, check=True).stdout
+        code = ["smplify3d_ros", "msg_adapters", "params"]  # not docs/: the bench's own outputs live there
+        diff = subprocess.run(
+            ["git", "diff", "HEAD", "--", *code], cwd=root, capture_output=True, check=True
+        ).stdout
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
     return commit + (f"-dirty-{hashlib.sha1(diff).hexdigest()[:8]}" if diff else "")
