@@ -199,7 +199,7 @@ class Recorder:
 def running_node(parameters: dict[str, Any] | None = None, share_fitter: bool = True) -> Iterator[tuple[Any, Recorder]]:
     """rclpy initialized, the node and a Recorder spinning in a background executor; all torn down after."""
     import rclpy
-    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.executors import SingleThreadedExecutor
 
     from smplify3d_ros.node import create_node
 
@@ -213,7 +213,7 @@ def running_node(parameters: dict[str, Any] | None = None, share_fitter: bool = 
         topics = {"image": node.config.node.topics.image, "camera_info": node.config.node.topics.camera_info,
                   "points": node.config.node.topics.points, "keypoints": node.config.node.topics.keypoints}
         recorder = Recorder(topics)
-        executor = MultiThreadedExecutor(num_threads=2)
+        executor = SingleThreadedExecutor()  # as `rclpy.spin` in the entry point; callbacks are short
         executor.add_node(node)
         executor.add_node(recorder.node)
         thread = threading.Thread(target=executor.spin, daemon=True)
