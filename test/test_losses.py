@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 import roma
 import torch
 
@@ -36,12 +37,32 @@ def test_reprojection_loss_hand_case():
     assert math.isclose(out.item(), expected, rel_tol=1e-5)
 
 
-def test_root_alignment_removes_a_pure_shift():
+@pytest.mark.parametrize("align", losses.ALIGNMENTS)
+def test_keypoint_alignment_removes_a_pure_shift(align):
     proj = torch.rand(2, 17, 2) * 100
     target = proj + torch.tensor([25.0, -40.0])
-    conf = torch.ones(2, 17)
-    assert losses.reprojection_loss(proj, target, conf, 50.0, root_aligned=True).abs().max() < 1e-3
-    assert losses.reprojection_loss(proj, target, conf, 50.0, root_aligned=False).min() > 100
+    conf = torch.rand(2, 17) + 0.1
+    assert losses.reprojection_loss(proj, target, conf, 50.0, align=align).abs().max() < 1e-3
+    assert losses.reprojection_loss(proj, target, conf, 50.0).min() > 100
+
+
+def test_alignment_shift_hand_cases():
+    proj = torch.zeros(1, 17, 2)
+    target = torch.zeros(1, 17, 2)
+    target[0, 11] = torch.tensor([10.0, 0.0])  # one hip detected 10 px to the right
+    conf = torch.ones(1, 17)
+    # hips: the midpoint moves 5 px, so the whole skeleton is shifted 5 px left
+    assert torch.allclose(losses.alignment_shift(proj, target, conf, "hips"), torch.tensor([[-5.0, 0.0]]))
+    # centroid: the mean offset over 17 equally confident keypoints
+    assert torch.allclose(losses.alignment_shift(proj, target, conf, "centroid"), torch.tensor([[-10.0 / 17, 0.0]]))
+    # a zero-confidence keypoint does not count; confidence enters squared
+    conf[0, 11] = 0.0
+    assert torch.allclose(losses.alignment_shift(proj, target, conf, "centroid"), torch.zeros(1, 2))
+    target[0, 0] = torch.tensor([0.0, 12.0])
+    conf[0, 0] = 2.0  # weight 4 against 15 others of weight 1
+    assert torch.allclose(losses.alignment_shift(proj, target, conf, "centroid"), torch.tensor([[0.0, -48.0 / 19]]))
+    with pytest.raises(ValueError, match="alignment"):
+        losses.alignment_shift(proj, target, conf, "pelvis")
 
 
 def test_chamfer_hand_case():

@@ -117,6 +117,7 @@ class OptimizerProfile:
     chamfer_max_vertices: int
     chamfer_max_points: int
     chamfer_vertex_weight: float
+    keypoint_alignment: Literal["hips", "centroid"]
     square_weights: bool
     weights: LossWeights
 
@@ -127,6 +128,7 @@ class OptimizerProfile:
         require(self.early_stop_rel_tol >= 0, "early_stop_rel_tol must be >= 0")
         require(self.early_stop_patience > 0, "early_stop_patience must be > 0")
         require(0.0 <= self.chamfer_vertex_weight <= 1.0, "chamfer_vertex_weight must be in [0, 1]")
+        require(self.keypoint_alignment in ("hips", "centroid"), "keypoint_alignment must be hips or centroid")
         require(self.chamfer_max_vertices >= 0 and self.chamfer_max_points >= 0,
                 "chamfer_max_vertices / chamfer_max_points must be >= 0 (0 = all)")
 

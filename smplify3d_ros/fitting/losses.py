@@ -34,20 +34,40 @@ def hip_center(keypoints: torch.Tensor) -> torch.Tensor:
     return 0.5 * (keypoints[..., 11, :] + keypoints[..., 12, :])
 
 
+ALIGNMENTS = ("hips", "centroid")
+
+
+def alignment_shift(
+    projected: torch.Tensor, target: torch.Tensor, confidence: torch.Tensor, align: str
+) -> torch.Tensor:
+    """(B, 2) image shift that moves the detected keypoints onto the projected ones (Eq. 11-12).
+
+    `hips` is the reference: the hip midpoints coincide. `centroid` removes the confidence²-weighted mean
+    offset over all keypoints, the least-squares 2D translation: the aligned term is just as blind to where
+    the body sits in the image, but one noisy or swapped hip no longer shifts every other keypoint.
+    """
+    if align == "hips":
+        return hip_center(projected) - hip_center(target)
+    if align == "centroid":
+        w = (confidence**2)[..., None]
+        return ((projected - target) * w).sum(-2) / w.sum(-2).clamp(min=torch.finfo(w.dtype).tiny)
+    raise ValueError(f"unknown keypoint alignment {align!r}: expected one of {ALIGNMENTS}")
+
+
 def reprojection_loss(
     projected: torch.Tensor,
     target: torch.Tensor,
     confidence: torch.Tensor,
     sigma: float,
-    root_aligned: bool = False,
+    align: str | None = None,
 ) -> torch.Tensor:
     """L_J (Eq. 3): Σ_i c_i² Σ_xy ρ(Π(J_i) − J_est,i), (B, K, 2) pixels and (B, K) confidences.
 
-    With `root_aligned` (Eq. 11-12) the detected keypoints are shifted so that their hip midpoint lies on
-    the projected model's hip midpoint: J_est^algn = J_est + (J_pro,0 − J_est,0).
+    With `align` (Eq. 11-12, `hips` or `centroid`, see `alignment_shift`) the detected keypoints are first
+    shifted onto the projected ones: J_est^algn = J_est + shift.
     """
-    if root_aligned:
-        target = target + (hip_center(projected) - hip_center(target))[:, None]
+    if align is not None:
+        target = target + alignment_shift(projected, target, confidence, align)[:, None]
     rho = geman_mcclure(projected - target, sigma).sum(-1)
     return (confidence**2 * rho).sum(-1)
 

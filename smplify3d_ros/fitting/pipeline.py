@@ -230,7 +230,7 @@ class Fitter:
         if builtin and cfg.init.refine_iterations > 0:
             problem = problem_for(state)
             w = cfg.optimizer.weights
-            spec = StageSpec("init", ("pose", "root_orient"), cfg.init.refine_iterations, False,
+            spec = StageSpec("init", ("pose", "root_orient"), cfg.init.refine_iterations, None,
                              w.sigma_px, 0.0, priors=True)
             refine_profile = _refine_profile(cfg)
             diverged = torch.zeros(B, dtype=torch.bool, device=self.device)

@@ -60,7 +60,7 @@ class StageSpec:
     name: str
     params: tuple[str, ...]
     iterations: int
-    root_aligned: bool  # compare keypoints after hip alignment (Eq. 11-12)
+    align: str | None  # keypoint alignment of L_J (Eq. 11-12: `hips`, `centroid`), None: none
     sigma_px: float
     chamfer_weight: float  # λ_3D of this stage (0: no 3D term)
     priors: bool  # pose, bending, shape and occlusion priors
@@ -104,7 +104,7 @@ def stage_loss(
     out = (body or model)(state.shape, state.pose, state.root_orient, state.transl, subset)
     projected = losses.project(out.keypoints, problem.K)
     loss = losses.reprojection_loss(
-        projected, problem.keypoints, problem.confidence, stage.sigma_px, root_aligned=stage.root_aligned
+        projected, problem.keypoints, problem.confidence, stage.sigma_px, align=stage.align
     )
     if stage.priors or stage.shape_only_prior:
         loss = loss + _w(weights.shape, profile) * model.shape_prior(state.shape)
@@ -200,14 +200,15 @@ def stage_plan(profile: OptimizerProfile) -> list[StageSpec]:
     w = profile.weights
     if profile.scheme == "single_stage":
         return [
-            StageSpec("single", PARAM_NAMES, profile.single_stage_iterations, False, w.sigma_px,
+            StageSpec("single", PARAM_NAMES, profile.single_stage_iterations, None, w.sigma_px,
                       w.chamfer, priors=True),
         ]
     n1, n2, n3 = profile.iterations
+    align = profile.keypoint_alignment
     return [
-        StageSpec("scale", ("shape",), n1, True, w.sigma_px, 0.0, priors=False, shape_only_prior=True),
-        StageSpec("mesh", ("pose", "shape", "root_orient"), n2, True, w.sigma_px, w.chamfer, priors=True),
-        StageSpec("image", ("transl",), n3, False, w.sigma_px_final, w.chamfer_final, priors=False),
+        StageSpec("scale", ("shape",), n1, align, w.sigma_px, 0.0, priors=False, shape_only_prior=True),
+        StageSpec("mesh", ("pose", "shape", "root_orient"), n2, align, w.sigma_px, w.chamfer, priors=True),
+        StageSpec("image", ("transl",), n3, None, w.sigma_px_final, w.chamfer_final, priors=False),
     ]
 
 
