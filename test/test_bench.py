@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
+import numpy as np
 import pytest
 
 from smplify3d_ros.eval import bench
@@ -61,6 +62,42 @@ def test_study_rows_carry_the_swept_value(tmp_path, monkeypatch):
     ]
     assert all(r["study"] == "dropout" for r in rows)
     assert (tmp_path / "study_dropout_vlp16.png").exists()
+
+
+def test_calibration_study_moves_the_lidar_by_the_error(tmp_path, monkeypatch):
+    """Each level of the calibration study hands the pipeline a transform off by that error, and fits all
+    three methods; with a larger error the init + ICP result moves further from the truth."""
+    monkeypatch.setattr(bench, "CALIBRATION_ERRORS", (0.0, 5.0))
+    out = tmp_path / "study.json"
+    args = parse(["--study", "calibration", "--scenes", "1", "--people", "1-1", "--json", str(out),
+                  "--plot-dir", str(tmp_path), "--no-progress", *FAST])  # fmt: skip
+    assert bench.run(args) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["method"], r["value"]) for r in rows] == [
+        (m, v) for v in (0.0, 5.0) for m in bench.CALIBRATION_METHODS
+    ]
+    icp = {r["value"]: r["mpjpe_mm"] for r in rows if r["method"] == "hmr_init_icp"}
+    assert icp[5.0] > icp[0.0] + 20.0  # 5 deg and 5 cm move a body at 3-8 m by decimetres
+    assert (tmp_path / "study_calibration_vlp16.png").exists()
+
+
+def test_miscalibrated_transform_has_the_requested_error():
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", [10, -80, 5], degrees=True).as_matrix()
+    T[:3, 3] = [0.1, -0.2, 0.3]
+    assert np.array_equal(bench.miscalibrated(T, 0.0, seed=4), T)
+    wrong = bench.miscalibrated(T, 2.0, seed=4)
+    delta = np.linalg.inv(T) @ wrong
+    assert np.degrees(Rotation.from_matrix(delta[:3, :3]).magnitude()) == pytest.approx(2.0)
+    assert np.linalg.norm(delta[:3, 3]) == pytest.approx(0.02)
+    # one direction per scene: a larger error scales the same rotation axis and shift direction
+    delta4 = np.linalg.inv(T) @ bench.miscalibrated(T, 4.0, seed=4)
+    assert np.allclose(delta4[:3, 3], 2.0 * delta[:3, 3])
+    assert np.allclose(Rotation.from_matrix(delta4[:3, :3]).as_rotvec(), 2.0 * Rotation.from_matrix(
+        delta[:3, :3]).as_rotvec())
+    assert not np.allclose(bench.miscalibrated(T, 2.0, seed=5), wrong)
 
 
 @pytest.mark.parametrize(("name", "key"), [("ouster64", "os1_64"), ("os1_32", "os1_32"), ("vlp16", "vlp16")])

@@ -213,13 +213,37 @@ def person_context(sim: Any, obs: Any, truth: Any, setup: Setup) -> dict[str, An
     }
 
 
+def miscalibrated(T_cam_lidar: np.ndarray, error: float, seed: int) -> np.ndarray:
+    """The LiDAR-to-camera transform a robot with a calibration error of `error` believes in: the true one
+    rotated by `error` degrees about a random axis through the LiDAR and shifted by `error` cm in a random
+    direction. The directions depend on `seed` only, so a sweep scales one error per scene."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng([seed, 11])
+    axis, direction = (v / np.linalg.norm(v) for v in rng.normal(size=(2, 3)))
+    delta = np.eye(4)
+    delta[:3, :3] = Rotation.from_rotvec(np.deg2rad(error) * axis).as_matrix()
+    delta[:3, 3] = 0.01 * error * direction
+    return T_cam_lidar @ delta
+
+
 def evaluate_scene(
-    sim: Any, seed: int, sensor: str, setup: Setup, methods: Sequence[str], value: float | None = None
+    sim: Any,
+    seed: int,
+    sensor: str,
+    setup: Setup,
+    methods: Sequence[str],
+    value: float | None = None,
+    calibration_error: float = 0.0,
 ) -> list[Case]:
-    """Cases of every method for every detected person of one simulated scene."""
+    """Cases of every method for every detected person of one simulated scene; with `calibration_error`
+    (see `miscalibrated`) the pipeline uses a wrong LiDAR-to-camera transform."""
     from smplify3d_ros.fitting.pipeline import observations_from_frame
 
-    people, origin = observations_from_frame(sim.frame, setup.config)
+    frame = sim.frame
+    if calibration_error:
+        frame = dataclasses.replace(frame, T_cam_lidar=miscalibrated(frame.T_cam_lidar, calibration_error, seed))
+    people, origin = observations_from_frame(frame, setup.config)
     truth = {p.person_id: p for p in sim.people}
     people = [p for p in people if p.person_id in truth and p.person_id in sim.hmr_init]
     if not people:
@@ -280,6 +304,7 @@ def run_scenes(
     value: float | None = None,
     progress: bool = True,
     desc: str = "",
+    calibration_error: float = 0.0,
 ) -> list[Case]:
     from tqdm import tqdm
 
@@ -287,7 +312,7 @@ def run_scenes(
     bar = tqdm(seeds, desc=desc or sensor, unit="scene", disable=not progress, file=sys.stderr)
     for seed in bar:
         sim = simulate(seed, setup, sensor, n_people, distance)
-        cases += evaluate_scene(sim, seed, sensor, setup, methods, value)
+        cases += evaluate_scene(sim, seed, sensor, setup, methods, value, calibration_error)
         bar.set_postfix(people=len({(c.scene, c.person_id) for c in cases}))
     return cases
 
@@ -523,8 +548,10 @@ SWEEPS = {
     ),
     "dropout": Sweep("dropout", (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6), lambda p: p, "drop-out fraction"),
 }
-STUDIES = ("sensors", *SWEEPS, "density", "ablation")
+CALIBRATION_ERRORS = (0.0, 0.5, 1.0, 2.0, 3.0)  # deg of rotation and cm of translation, see `miscalibrated`
+STUDIES = ("sensors", *SWEEPS, "calibration", "density", "ablation")
 STUDY_METHODS = ("hmr_init_icp", "smplify3d_three_stage")
+CALIBRATION_METHODS = ("hmr_init_icp", "smplify3d_single_stage", "smplify3d_three_stage")
 PARTLY_HIDDEN = 0.9  # ablation subset: people this much or less visible (others, objects, image border)
 ABLATION_METHODS = (
     "smplify3d_three_stage",
@@ -624,6 +651,17 @@ def run_study(args: argparse.Namespace, setup_for: Callable[..., Setup]) -> Repo
                     f"{SENSOR_LABELS[sensor]}: {study.replace('_', ' ')} ({len(seeds)} scenes)",
                 )
             )
+    elif study == "calibration":
+        setup = setup_for(sensor)
+        for value in CALIBRATION_ERRORS:
+            part = run_scenes(setup, sensor, seeds, CALIBRATION_METHODS, args.people, args.distance, value=value,
+                              progress=args.progress, desc=f"{study}={value:g}", calibration_error=value)
+            cases += part
+            rows += [summarize(part, m, sensor, study=study, value=value) for m in CALIBRATION_METHODS]
+        columns = ("value",)
+        if plot_path is not None:
+            plots.append(plot_sweep(rows, plot_path, "LiDAR-camera calibration error (deg and cm)",
+                                    f"{SENSOR_LABELS[sensor]}: calibration error ({len(seeds)} scenes)"))
     elif study == "density":
         distance = (2.0, 20.0) if args.distance_given is None else args.distance
         args.distance = distance  # for the JSON's meta
