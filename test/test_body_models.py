@@ -33,6 +33,28 @@ def test_anny_upright_facing_camera(anny_model):
     assert out.vertices.shape == (1, 13718, 3)
 
 
+def test_anny_subset_forward_matches_the_full_one(anny_model):
+    """The fitting steps pose only the vertices they use (own rest shaping and skinning): the same
+    vertices, joints and keypoints as Anny's full forward, and the same gradients."""
+    g = torch.Generator().manual_seed(0)
+    dt = anny_model.anat_frames.dtype
+    B, J = 2, len(BODY_JOINTS)
+    shape = (0.5 + 0.3 * (torch.rand(B, len(anny_model.shape_names), generator=g, dtype=dt) - 0.5))
+    pose = 0.4 * (torch.rand(B, J, 3, generator=g, dtype=dt) - 0.5)
+    root = torch.tensor([upright_root_orient(0.4), upright_root_orient(-2.0)], dtype=dt)
+    transl = torch.tensor([[0.3, -0.1, 4.0], [-1.0, 0.2, 7.0]], dtype=dt)
+    subset = torch.randperm(13718, generator=g)[:700]
+    outputs = []
+    for index in (None, subset):
+        s, p = shape.clone().requires_grad_(True), pose.clone().requires_grad_(True)
+        out = anny_model(s, p, root, transl, index)
+        vertices = out.vertices if index is not None else out.vertices[:, subset]
+        (vertices.square().sum() + out.keypoints.square().sum()).backward()
+        outputs.append((vertices, out.joints, out.keypoints, s.grad, p.grad))
+    for full, part in zip(*outputs, strict=True):
+        assert torch.allclose(full, part, atol=1e-4, rtol=1e-4)
+
+
 def test_anny_parts_cover_every_part(anny_model):
     parts = anny_model.part_of_face.numpy()
     assert set(parts[parts >= 0]) == set(range(len(PART_NAMES)))

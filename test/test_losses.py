@@ -72,6 +72,8 @@ def test_chamfer_hand_case():
     pmask = torch.ones(1, 2, dtype=torch.bool)
     # v->p: 0.01, 0.09 -> mean 0.05; p->v: 0.01, 0.09 -> mean 0.05
     assert math.isclose(losses.chamfer_loss(verts, vmask, pts, pmask).item(), 0.1, rel_tol=1e-5)
+    # without the vertex-to-point half (robot profile): p->v only
+    assert math.isclose(losses.chamfer_loss(verts, vmask, pts, pmask, 0.0).item(), 0.05, rel_tol=1e-5)
 
 
 def test_chamfer_empty_person_is_zero_and_has_gradient_elsewhere():

@@ -13,6 +13,7 @@ What this adapter adds to `anny.Anny`:
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import roma
 import torch
@@ -51,6 +52,17 @@ C_ANNY_FROM_CANONICAL = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1
 _INTERNAL_SEGMENTS = ("eye_back.L", "eye_back.R", "eye_cavity.L", "eye_cavity.R", "mouth_cavity", "tongue")
 
 
+@dataclass(frozen=True)
+class _VertexSubset:
+    """Anny's per-vertex tensors restricted to `index`."""
+
+    index: torch.Tensor  # (V,) vertex indices
+    template: torch.Tensor  # (V, 3) template positions
+    blendshapes: torch.Tensor  # (C, V, 3) blend-shape offsets
+    bone_weights: torch.Tensor  # (V, k) skinning weights
+    bone_indices: torch.Tensor  # (V, k) their bones
+
+
 class AnnyBody(BodyModel):
     name = "anny"
 
@@ -62,6 +74,8 @@ class AnnyBody(BodyModel):
         model = anny.Anny().to(dtype=dtype)
         model.requires_grad_(False)
         self.anny = model
+        self._subset_cache: _VertexSubset | None = None
+        self._with_keypoints: tuple[torch.Tensor, torch.Tensor] | None = None
         self.shape_names = tuple(model.phenotype_labels)
         self.shape_sigma = shape_sigma
         self.shape_bound_weight = shape_bound_weight
@@ -134,22 +148,62 @@ class AnnyBody(BodyModel):
         if vertex_index is None:
             out = self.anny(pose_parameters=deltas, phenotype_kwargs=shape.expand(B, -1))
             verts, bone_poses = out["vertices"], out["bone_poses"]
-        else:  # Anny's forward, skinning only the requested vertices
+        else:  # Anny's forward, shaping and skinning only the requested vertices
             anny = self.anny
             no_changes = shape.new_zeros(B, 0)
             coeffs = anny._get_phenotype_blendshape_coefficients(shape.expand(B, -1), no_changes, no_changes)
-            rest = anny.get_rest_model(coeffs)
-            transforms, bone_poses = anny.get_bone_transforms(deltas, rest["rest_bone_poses"])
-            verts = anny._skinning_method(
-                rest["rest_vertices"][:, vertex_index].expand(B, -1, -1),
-                bone_weights=anny.vertex_bone_weights[vertex_index][None],
-                bone_indices=anny.vertex_bone_indices[vertex_index][None],
-                bone_transforms=transforms,
-            )
+            subset = self._subset(vertex_index)
+            rest_vertices, rest_bone_poses = self._rest_subset(coeffs, subset)
+            transforms, bone_poses = anny.get_bone_transforms(deltas, rest_bone_poses)
+            verts = _skin(rest_vertices, subset.bone_weights, subset.bone_indices, transforms)
         pelvis = bone_poses[:, self.root_bone, :3, 3]  # (B, 3)
         verts = (verts - pelvis[:, None]) @ C  # C^T applied to row vectors
         joints = (bone_poses[:, self.bone_index, :3, 3] - pelvis[:, None]) @ C
         return verts, joints
+
+    def _subset(self, vertex_index: torch.Tensor) -> _VertexSubset:
+        """Anny's per-vertex data restricted to `vertex_index`, cached for the last index tensor: a fitting
+        stage passes the same tensor on every step, and slicing 136 blend shapes costs as much as using
+        them."""
+        cached = self._subset_cache
+        if cached is not None and cached.index is vertex_index:
+            return cached
+        anny = self.anny
+        subset = _VertexSubset(
+            vertex_index,
+            anny.template_vertices[vertex_index],
+            anny.blendshapes[:, vertex_index].contiguous(),
+            anny.vertex_bone_weights[vertex_index],
+            anny.vertex_bone_indices[vertex_index],
+        )
+        self._subset_cache = subset
+        return subset
+
+    def _rest_subset(self, coeffs: torch.Tensor, subset: _VertexSubset) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rest vertices of `subset` and rest bone poses for blend-shape `coeffs` (B, C).
+
+        `anny.get_rest_model` shapes all 13,718 vertices with 136 blend shapes, forward and backward, on
+        every call: most of a fitting step. With the bone orientations Anny caches (its default), the bone
+        poses do not depend on the vertices, so only the requested vertices are shaped here; the result
+        equals `get_rest_model`'s (test_anny_subset_forward_matches_the_full_one).
+        """
+        anny = self.anny
+        if anny.bone_orientation != "cached":
+            rest = anny.get_rest_model(coeffs)
+            return rest["rest_vertices"][:, subset.index], rest["rest_bone_poses"]
+        from anny.skinning.skinning import apply_linear_blendshape
+
+        rest_vertices = apply_linear_blendshape(subset.template, subset.blendshapes, coeffs)
+        heads = apply_linear_blendshape(anny.template_bone_heads, anny.bone_heads_blendshapes, coeffs)
+        M = anny.bone_template_orientation_matrices[None] + torch.einsum(
+            "ba,akij->bkij", coeffs, anny.bone_orientation_blendshapes)
+        orientation = roma.special_procrustes(M)
+        if anny.rest_orientation_refiner is not None:
+            orientation = anny.rest_orientation_refiner(orientation, heads)
+        poses = roma.Rigid(linear=orientation, translation=heads).to_homogeneous()
+        if anny.root_identity_orientation:
+            poses[:, 0, :3, :3] = torch.eye(3, device=poses.device, dtype=poses.dtype)
+        return rest_vertices, poses
 
     def forward(
         self,
@@ -164,7 +218,10 @@ class AnnyBody(BodyModel):
             kp_verts, kp_weights = verts, self.kp_weights
         else:
             n = len(self.kp_support)
-            both, joints = self._posed_canonical(shape, pose, torch.cat([self.kp_support, vertex_index]))
+            cached = self._with_keypoints
+            if cached is None or cached[0] is not vertex_index:  # the same tensor on every step of a stage
+                cached = self._with_keypoints = (vertex_index, torch.cat([self.kp_support, vertex_index]))
+            both, joints = self._posed_canonical(shape, pose, cached[1])
             kp_verts, verts, kp_weights = both[:, :n], both[:, n:], self.kp_sparse
         R = roma.rotvec_to_rotmat(root_orient)  # (B, 3, 3)
         verts = verts @ R.transpose(1, 2) + transl[:, None]
@@ -172,3 +229,13 @@ class AnnyBody(BodyModel):
         keypoints = torch.einsum("kv,bvd->bkd", kp_weights.to(verts.dtype), kp_verts) @ R.transpose(1, 2)
         keypoints = keypoints + transl[:, None]
         return BodyOutput(verts, joints, keypoints)
+
+
+def _skin(
+    vertices: torch.Tensor, weights: torch.Tensor, indices: torch.Tensor, transforms: torch.Tensor
+) -> torch.Tensor:
+    """Linear blend skinning of (B, V, 3) rest vertices with (V, k) bone weights and indices and (B, J, 4, 4)
+    bone transforms, in plain torch: for the few thousand vertices a fitting step poses this is several
+    times faster than Anny's Warp kernel, whose per-call overhead dominates at that size."""
+    T = (transforms[:, indices] * weights[None, ..., None, None]).sum(2)  # (B, V, 4, 4)
+    return (T[..., :3, :3] @ vertices[..., None])[..., 0] + T[..., :3, 3]

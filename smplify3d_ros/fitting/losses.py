@@ -72,26 +72,32 @@ def reprojection_loss(
     return (confidence**2 * rho).sum(-1)
 
 
-def nearest_sq_distances(
-    source: torch.Tensor, target: torch.Tensor, target_mask: torch.Tensor
-) -> torch.Tensor:
-    """Squared distance from each source point (B, n, 3) to its nearest valid target (B, m, 3).
-
-    The nearest neighbour is searched without gradient on one matrix product (fast for a few thousand
-    points on each side); the distance to it is then recomputed with gradient for both sides.
-    """
-    if source.shape[1] == 0 or target.shape[1] == 0:
-        return source.new_zeros(source.shape[:2])
+def nearest_indices(
+    a: torch.Tensor, a_mask: torch.Tensor, b: torch.Tensor, b_mask: torch.Tensor, both: bool = True
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Index of each a (B, n, 3)'s nearest valid b (B, m, 3), (B, n), and with `both` of each b's nearest
+    valid a, (B, m); from one distance matrix, without gradient (fast for a few thousand on each side)."""
     with torch.no_grad():
-        d2 = (
-            (source**2).sum(-1, keepdim=True)
-            - 2.0 * source @ target.transpose(1, 2)
-            + (target**2).sum(-1)[:, None, :]
-        )
-        d2 = d2.masked_fill(~target_mask[:, None, :], float("inf"))
-        index = d2.argmin(dim=-1)  # (B, n)
+        d2 = (a**2).sum(-1, keepdim=True) - 2.0 * a @ b.transpose(1, 2) + (b**2).sum(-1)[:, None, :]
+        a_to_b = d2.masked_fill(~b_mask[:, None, :], float("inf")).argmin(dim=-1)
+        b_to_a = d2.masked_fill_(~a_mask[:, :, None], float("inf")).argmin(dim=-2) if both else None
+    return a_to_b, b_to_a
+
+
+def gathered_sq_distances(source: torch.Tensor, target: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """||source_i − target_index_i||², (B, n), with gradient for both sides."""
     nearest = torch.gather(target, 1, index[..., None].expand(-1, -1, 3))
     return ((source - nearest) ** 2).sum(-1)
+
+
+def nearest_sq_distances(source: torch.Tensor, target: torch.Tensor, target_mask: torch.Tensor) -> torch.Tensor:
+    """Squared distance from each source point (B, n, 3) to its nearest valid target (B, m, 3): the
+    neighbour is searched without gradient, the distance to it recomputed with gradient for both sides."""
+    if source.shape[1] == 0 or target.shape[1] == 0:
+        return source.new_zeros(source.shape[:2])
+    index, _ = nearest_indices(source, torch.ones_like(source[..., 0], dtype=torch.bool), target, target_mask,
+                               both=False)
+    return gathered_sq_distances(source, target, index)
 
 
 def chamfer_loss(
@@ -109,11 +115,15 @@ def chamfer_loss(
     every visible vertex onto the nearest ring squashes the body between them.
     """
     has = vertex_mask.any(-1) & point_mask.any(-1)
-    v_to_p = nearest_sq_distances(vertices, points, point_mask)
-    p_to_v = nearest_sq_distances(points, vertices, vertex_mask)
+    if vertices.shape[1] == 0 or points.shape[1] == 0:
+        return vertices.new_zeros(vertices.shape[0])
+    p_index, v_index = nearest_indices(points, point_mask, vertices, vertex_mask, both=vertex_weight > 0)
     n = vertex_mask.sum(-1).clamp(min=1)
     m = point_mask.sum(-1).clamp(min=1)
-    loss = vertex_weight * (v_to_p * vertex_mask).sum(-1) / n + (p_to_v * point_mask).sum(-1) / m
+    loss = (gathered_sq_distances(points, vertices, p_index) * point_mask).sum(-1) / m
+    if v_index is not None:
+        v_to_p = gathered_sq_distances(vertices, points, v_index)
+        loss = loss + vertex_weight * (v_to_p * vertex_mask).sum(-1) / n
     return torch.where(has, loss, torch.zeros_like(loss))
 
 

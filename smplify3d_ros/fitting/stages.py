@@ -151,8 +151,8 @@ def run_stage(
     best = state.clone()
     best_loss = torch.full_like(problem.use_lidar, float("inf"), dtype=state.pose.dtype)
     start_loss: torch.Tensor | None = None
-    previous_total = None
-    calm = 0
+    previous: torch.Tensor | None = None
+    calm = torch.zeros_like(problem.use_lidar, dtype=torch.int64)  # iterations each person barely improved
     iterations = 0
     for _ in range(stage.iterations):
         optimizer.zero_grad(set_to_none=True)
@@ -176,15 +176,13 @@ def run_stage(
         optimizer.step()
         state.copy_rows_from(best, diverged)
         iterations += 1
-        total = float(detached[active].sum())
-        if profile.early_stop_rel_tol > 0 and previous_total is not None:
-            if previous_total - total < profile.early_stop_rel_tol * abs(previous_total):
-                calm += 1
-                if calm >= profile.early_stop_patience:
+        if profile.early_stop_rel_tol > 0:  # stop once every active person has converged
+            if previous is not None:
+                slow = previous - detached < profile.early_stop_rel_tol * previous.abs()
+                calm = torch.where(slow, calm + 1, torch.zeros_like(calm))
+                if bool((calm[active] >= profile.early_stop_patience).all()):
                     break
-            else:
-                calm = 0
-        previous_total = total
+            previous = detached
     for t in tensors:
         t.requires_grad_(False)
     with torch.no_grad():
