@@ -41,7 +41,7 @@ def test_anny_subset_forward_matches_the_full_one(anny_model):
     B, J = 2, len(BODY_JOINTS)
     shape = (0.5 + 0.3 * (torch.rand(B, len(anny_model.shape_names), generator=g, dtype=dt) - 0.5))
     pose = 0.4 * (torch.rand(B, J, 3, generator=g, dtype=dt) - 0.5)
-    root = torch.tensor([upright_root_orient(0.4), upright_root_orient(-2.0)], dtype=dt)
+    root = torch.as_tensor(np.stack([upright_root_orient(0.4), upright_root_orient(-2.0)]), dtype=dt)
     transl = torch.tensor([[0.3, -0.1, 4.0], [-1.0, 0.2, 7.0]], dtype=dt)
     subset = torch.randperm(13718, generator=g)[:700]
     outputs = []
