@@ -47,16 +47,21 @@ def test_tiny_run_writes_the_json_schema_and_a_plot(tmp_path, capsys):
     assert "| smplify3d_three_stage | VLP-16 |" in printed
 
 
+def run_study(study: str, tmp_path) -> list[dict]:
+    """Rows of a one-scene, one-person run of `study` (plots into tmp_path)."""
+    out = tmp_path / "study.json"
+    args = parse(["--study", study, "--scenes", "1", "--people", "1-1", "--json", str(out),
+                  "--plot-dir", str(tmp_path), "--no-progress", *FAST])  # fmt: skip
+    assert bench.run(args) == 0
+    return json.loads(out.read_text())["rows"]
+
+
 def test_study_rows_carry_the_swept_value(tmp_path, monkeypatch):
     """A sweep study with two levels runs each level and plots MPJPE against the value."""
     monkeypatch.setitem(
         bench.SWEEPS, "dropout", bench.Sweep("dropout", (0.0, 0.5), lambda p: p, "drop-out fraction")
     )
-    out = tmp_path / "study.json"
-    args = parse(["--study", "dropout", "--scenes", "1", "--people", "1-1", "--json", str(out),
-                  "--plot-dir", str(tmp_path), "--no-progress", *FAST])  # fmt: skip
-    assert bench.run(args) == 0
-    rows = json.loads(out.read_text())["rows"]
+    rows = run_study("dropout", tmp_path)
     assert [(r["method"], r["value"]) for r in rows] == [
         (m, v) for v in (0.0, 0.5) for m in bench.STUDY_METHODS
     ]
@@ -68,11 +73,7 @@ def test_calibration_study_moves_the_lidar_by_the_error(tmp_path, monkeypatch):
     """Each level of the calibration study hands the pipeline a transform off by that error, and fits all
     three methods; with a larger error the init + ICP result moves further from the truth."""
     monkeypatch.setattr(bench, "CALIBRATION_ERRORS", (0.0, 5.0))
-    out = tmp_path / "study.json"
-    args = parse(["--study", "calibration", "--scenes", "1", "--people", "1-1", "--json", str(out),
-                  "--plot-dir", str(tmp_path), "--no-progress", *FAST])  # fmt: skip
-    assert bench.run(args) == 0
-    rows = json.loads(out.read_text())["rows"]
+    rows = run_study("calibration", tmp_path)
     assert [(r["method"], r["value"]) for r in rows] == [
         (m, v) for v in (0.0, 5.0) for m in bench.CALIBRATION_METHODS
     ]
