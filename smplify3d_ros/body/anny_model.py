@@ -56,7 +56,8 @@ _INTERNAL_SEGMENTS = ("eye_back.L", "eye_back.R", "eye_cavity.L", "eye_cavity.R"
 class _VertexSubset:
     """Anny's per-vertex tensors restricted to `index`."""
 
-    index: torch.Tensor  # (V,) vertex indices
+    key: torch.Tensor  # the caller's vertex index tensor this subset was built for (cache key)
+    index: torch.Tensor  # (V,) vertex indices: the keypoint support, then the caller's vertices
     template: torch.Tensor  # (V, 3) template positions
     blendshapes: torch.Tensor  # (C, V, 3) blend-shape offsets
     bone_weights: torch.Tensor  # (V, k) skinning weights
@@ -75,7 +76,6 @@ class AnnyBody(BodyModel):
         model.requires_grad_(False)
         self.anny = model
         self._subset_cache: _VertexSubset | None = None
-        self._with_keypoints: tuple[torch.Tensor, torch.Tensor] | None = None
         self.shape_names = tuple(model.phenotype_labels)
         self.shape_sigma = shape_sigma
         self.shape_bound_weight = shape_bound_weight
@@ -137,22 +137,21 @@ class AnnyBody(BodyModel):
         outside = (torch.relu(-shape) + torch.relu(shape - 1.0)) ** 2
         return near_mean + self.shape_bound_weight * outside.sum(-1)
 
-    def _posed_canonical(self, shape: torch.Tensor, pose: torch.Tensor, vertex_index: torch.Tensor | None = None):
-        """Vertices (all, or `vertex_index`) and joints of the posed body in canonical axes, pelvis at the
+    def _posed_canonical(self, shape: torch.Tensor, pose: torch.Tensor, subset: _VertexSubset | None = None):
+        """Vertices (all, or those of `subset`) and joints of the posed body in canonical axes, pelvis at the
         origin."""
         B = max(shape.shape[0], pose.shape[0])
         C = self.C.to(pose.dtype)
         rot = C @ roma.rotvec_to_rotmat(pose) @ C.T  # (B, J, 3, 3) in Anny axes
         deltas = torch.eye(4, dtype=pose.dtype, device=pose.device).repeat(B, len(self.anny.bone_labels), 1, 1)
         deltas[:, self.bone_index, :3, :3] = rot.expand(B, -1, -1, -1)
-        if vertex_index is None:
+        if subset is None:
             out = self.anny(pose_parameters=deltas, phenotype_kwargs=shape.expand(B, -1))
             verts, bone_poses = out["vertices"], out["bone_poses"]
         else:  # Anny's forward, shaping and skinning only the requested vertices
             anny = self.anny
             no_changes = shape.new_zeros(B, 0)
             coeffs = anny._get_phenotype_blendshape_coefficients(shape.expand(B, -1), no_changes, no_changes)
-            subset = self._subset(vertex_index)
             rest_vertices, rest_bone_poses = self._rest_subset(coeffs, subset)
             transforms, bone_poses = anny.get_bone_transforms(deltas, rest_bone_poses)
             verts = _skin(rest_vertices, subset.bone_weights, subset.bone_indices, transforms)
@@ -162,19 +161,21 @@ class AnnyBody(BodyModel):
         return verts, joints
 
     def _subset(self, vertex_index: torch.Tensor) -> _VertexSubset:
-        """Anny's per-vertex data restricted to `vertex_index`, cached for the last index tensor: a fitting
-        stage passes the same tensor on every step, and slicing 136 blend shapes costs as much as using
-        them."""
+        """Anny's per-vertex data for the keypoint support followed by `vertex_index`, cached for the last
+        index tensor: a fitting stage passes the same tensor on every step, and slicing 136 blend shapes
+        costs as much as using them."""
         cached = self._subset_cache
-        if cached is not None and cached.index is vertex_index:
+        if cached is not None and cached.key is vertex_index:
             return cached
         anny = self.anny
+        index = torch.cat([self.kp_support, vertex_index])
         subset = _VertexSubset(
             vertex_index,
-            anny.template_vertices[vertex_index],
-            anny.blendshapes[:, vertex_index].contiguous(),
-            anny.vertex_bone_weights[vertex_index],
-            anny.vertex_bone_indices[vertex_index],
+            index,
+            anny.template_vertices[index],
+            anny.blendshapes[:, index].contiguous(),
+            anny.vertex_bone_weights[index],
+            anny.vertex_bone_indices[index],
         )
         self._subset_cache = subset
         return subset
@@ -218,10 +219,7 @@ class AnnyBody(BodyModel):
             kp_verts, kp_weights = verts, self.kp_weights
         else:
             n = len(self.kp_support)
-            cached = self._with_keypoints
-            if cached is None or cached[0] is not vertex_index:  # the same tensor on every step of a stage
-                cached = self._with_keypoints = (vertex_index, torch.cat([self.kp_support, vertex_index]))
-            both, joints = self._posed_canonical(shape, pose, cached[1])
+            both, joints = self._posed_canonical(shape, pose, self._subset(vertex_index))
             kp_verts, verts, kp_weights = both[:, :n], both[:, n:], self.kp_sparse
         R = roma.rotvec_to_rotmat(root_orient)  # (B, 3, 3)
         verts = verts @ R.transpose(1, 2) + transl[:, None]

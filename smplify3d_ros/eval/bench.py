@@ -598,6 +598,20 @@ def run_main(args: argparse.Namespace, setup_for: Callable[..., Setup]) -> Repor
     return Report(rows, cases, table, plots, notes, {"rows_with_lidar": subset})
 
 
+def _add_part(
+    cases: list[Case], rows: list[dict[str, Any]], args: argparse.Namespace, setup: Setup, sensor: str,
+    seeds: Sequence[int], methods: Sequence[str], distance: tuple[float, float], study: str | None = None,
+    value: float | None = None, calibration_error: float = 0.0,
+) -> None:
+    """Run `methods` on `seeds` and append the cases and one summary row per method (with the study and
+    swept value, when given)."""
+    part = run_scenes(setup, sensor, seeds, methods, args.people, distance, value=value, progress=args.progress,
+                      desc="" if value is None else f"{study}={value:g}", calibration_error=calibration_error)
+    cases += part
+    extra = {} if value is None else {"study": study, "value": value}
+    rows += [summarize(part, m, sensor, **extra) for m in methods]
+
+
 def run_study(args: argparse.Namespace, setup_for: Callable[..., Setup]) -> Report:
     study = args.study
     sensor = resolve_sensor(args.sensor)
@@ -609,11 +623,7 @@ def run_study(args: argparse.Namespace, setup_for: Callable[..., Setup]) -> Repo
     columns: tuple[str, ...] = ()
     if study == "sensors":
         for s in SENSOR_LABELS:
-            part = run_scenes(
-                setup_for(s), s, seeds, STUDY_METHODS, args.people, args.distance, progress=args.progress
-            )
-            cases += part
-            rows += [summarize(part, m, s) for m in STUDY_METHODS]
+            _add_part(cases, rows, args, setup_for(s), s, seeds, STUDY_METHODS, args.distance)
         if plot_path is not None:
             plot_path = plot_path.with_name(f"study_{study}.png")
             plots.append(
@@ -627,20 +637,8 @@ def run_study(args: argparse.Namespace, setup_for: Callable[..., Setup]) -> Repo
         sweep = SWEEPS[study]
         for value in sweep.values:
             overrides = {"sim": {"lidar": {"sensors": {sensor: {sweep.key: sweep.to_config(value)}}}}}
-            setup = setup_for(sensor, overrides)
-            part = run_scenes(
-                setup,
-                sensor,
-                seeds,
-                STUDY_METHODS,
-                args.people,
-                args.distance,
-                value=value,
-                progress=args.progress,
-                desc=f"{study}={value:g}",
-            )
-            cases += part
-            rows += [summarize(part, m, sensor, study=study, value=value) for m in STUDY_METHODS]
+            _add_part(cases, rows, args, setup_for(sensor, overrides), sensor, seeds, STUDY_METHODS, args.distance,
+                      study, value)
         columns = ("value",)
         if plot_path is not None:
             plots.append(
@@ -654,10 +652,8 @@ def run_study(args: argparse.Namespace, setup_for: Callable[..., Setup]) -> Repo
     elif study == "calibration":
         setup = setup_for(sensor)
         for value in CALIBRATION_ERRORS:
-            part = run_scenes(setup, sensor, seeds, CALIBRATION_METHODS, args.people, args.distance, value=value,
-                              progress=args.progress, desc=f"{study}={value:g}", calibration_error=value)
-            cases += part
-            rows += [summarize(part, m, sensor, study=study, value=value) for m in CALIBRATION_METHODS]
+            _add_part(cases, rows, args, setup, sensor, seeds, CALIBRATION_METHODS, args.distance, study, value,
+                      calibration_error=value)
         columns = ("value",)
         if plot_path is not None:
             plots.append(plot_sweep(rows, plot_path, "LiDAR-camera calibration error (deg and cm)",
@@ -666,11 +662,7 @@ def run_study(args: argparse.Namespace, setup_for: Callable[..., Setup]) -> Repo
         distance = (2.0, 20.0) if args.distance_given is None else args.distance
         args.distance = distance  # for the JSON's meta
         for s in SENSOR_LABELS:
-            part = run_scenes(
-                setup_for(s), s, seeds, STUDY_METHODS, args.people, distance, progress=args.progress
-            )
-            cases += part
-            rows += [summarize(part, m, s) for m in STUDY_METHODS]
+            _add_part(cases, rows, args, setup_for(s), s, seeds, STUDY_METHODS, distance)
         if plot_path is not None:
             plot_path = plot_path.with_name(f"study_{study}.png")
             plots.append(

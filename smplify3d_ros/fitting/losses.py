@@ -73,14 +73,15 @@ def reprojection_loss(
 
 
 def nearest_indices(
-    a: torch.Tensor, a_mask: torch.Tensor, b: torch.Tensor, b_mask: torch.Tensor, both: bool = True
+    a: torch.Tensor, b: torch.Tensor, b_mask: torch.Tensor, a_mask: torch.Tensor | None = None
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """Index of each a (B, n, 3)'s nearest valid b (B, m, 3), (B, n), and with `both` of each b's nearest
-    valid a, (B, m); from one distance matrix, without gradient (fast for a few thousand on each side)."""
+    """Index of each a (B, n, 3)'s nearest valid b (B, m, 3), (B, n), and, when `a_mask` is given, of each
+    b's nearest valid a, (B, m); from one distance matrix, without gradient (fast for a few thousand on
+    each side)."""
     with torch.no_grad():
         d2 = (a**2).sum(-1, keepdim=True) - 2.0 * a @ b.transpose(1, 2) + (b**2).sum(-1)[:, None, :]
         a_to_b = d2.masked_fill(~b_mask[:, None, :], float("inf")).argmin(dim=-1)
-        b_to_a = d2.masked_fill_(~a_mask[:, :, None], float("inf")).argmin(dim=-2) if both else None
+        b_to_a = None if a_mask is None else d2.masked_fill_(~a_mask[:, :, None], float("inf")).argmin(dim=-2)
     return a_to_b, b_to_a
 
 
@@ -95,8 +96,7 @@ def nearest_sq_distances(source: torch.Tensor, target: torch.Tensor, target_mask
     neighbour is searched without gradient, the distance to it recomputed with gradient for both sides."""
     if source.shape[1] == 0 or target.shape[1] == 0:
         return source.new_zeros(source.shape[:2])
-    index, _ = nearest_indices(source, torch.ones_like(source[..., 0], dtype=torch.bool), target, target_mask,
-                               both=False)
+    index, _ = nearest_indices(source, target, target_mask)
     return gathered_sq_distances(source, target, index)
 
 
@@ -117,7 +117,7 @@ def chamfer_loss(
     has = vertex_mask.any(-1) & point_mask.any(-1)
     if vertices.shape[1] == 0 or points.shape[1] == 0:
         return vertices.new_zeros(vertices.shape[0])
-    p_index, v_index = nearest_indices(points, point_mask, vertices, vertex_mask, both=vertex_weight > 0)
+    p_index, v_index = nearest_indices(points, vertices, vertex_mask, point_mask if vertex_weight > 0 else None)
     n = vertex_mask.sum(-1).clamp(min=1)
     m = point_mask.sum(-1).clamp(min=1)
     loss = (gathered_sq_distances(points, vertices, p_index) * point_mask).sum(-1) / m
