@@ -37,23 +37,29 @@ def _vec(a: Any) -> list[float | None]:
     return [_num(x) for x in np.asarray(a, dtype=np.float64).reshape(-1)]
 
 
+def body_to_dict(person_id: int, params: BodyParams, joint_names: Sequence[str],
+                 keypoints3d: np.ndarray) -> dict[str, Any]:
+    """The body parameters and 3D keypoints of one body of a document (also ground-truth documents)."""
+    pose = np.asarray(params.pose, dtype=np.float64).reshape(-1, 3)
+    if len(joint_names) != len(pose):
+        raise ValueError(f"person {person_id}: {len(joint_names)} joint names for {len(pose)} pose rows")
+    kp3d = np.asarray(keypoints3d, dtype=np.float64).reshape(-1, 3)
+    return {
+        "id": int(person_id),
+        "model": str(params.model),
+        "shape": _vec(params.shape),
+        "root_orient": _vec(params.root_orient),
+        "transl": _vec(params.transl),
+        "pose": {str(name): _vec(row) for name, row in zip(joint_names, pose, strict=True)},
+        "joints3d": {name: _vec(p) for name, p in zip(COCO17_NAMES, kp3d, strict=True)},
+    }
+
+
 def fit_to_dict(fit: BodyFit) -> dict[str, Any]:
     """One body of the document."""
-    pose = np.asarray(fit.params.pose, dtype=np.float64).reshape(-1, 3)
-    if len(fit.joint_names) != len(pose):
-        raise ValueError(
-            f"person {fit.person_id}: {len(fit.joint_names)} joint names for {len(pose)} pose rows"
-        )
-    kp3d = np.asarray(fit.keypoints3d, dtype=np.float64).reshape(-1, 3)
     q = fit.quality
     return {
-        "id": int(fit.person_id),
-        "model": str(fit.params.model),
-        "shape": _vec(fit.params.shape),
-        "root_orient": _vec(fit.params.root_orient),
-        "transl": _vec(fit.params.transl),
-        "pose": {str(name): _vec(row) for name, row in zip(fit.joint_names, pose, strict=True)},
-        "joints3d": {name: _vec(p) for name, p in zip(COCO17_NAMES, kp3d, strict=True)},
+        **body_to_dict(fit.person_id, fit.params, fit.joint_names, fit.keypoints3d),
         "quality": {
             "reprojection_px": _num(q.reprojection_px),
             "chamfer_m": _num(q.chamfer_m),

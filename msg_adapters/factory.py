@@ -9,10 +9,10 @@ Writers in `msg_adapters` never import a message class themselves; they ask a `M
 same field values: numpy arrays, bytes, lists or scalars are converted to what the runtime stores
 (`array.array` / numpy arrays / Python scalars). Fields left out get the message's default value.
 
-Stamps: every function that takes a stamp accepts either float seconds or a stamp message (anything with
-`sec` and `nanosec`, e.g. the input image's `header.stamp`). Pass the message when the output must carry
-the input's stamp exactly: float64 seconds cannot hold today's epoch stamps to the nanosecond (about
-0.2 us resolution), and downstream exact-time synchronizers compare nanoseconds.
+Stamps: every function that takes a stamp accepts integer nanoseconds, a stamp message (anything with
+`sec` and `nanosec`, e.g. the input image's `header.stamp`) or float seconds. The package passes integer
+nanoseconds (or the input's stamp message) end to end: float64 seconds cannot hold today's epoch stamps
+to the nanosecond (about 0.2 us resolution), and downstream exact-time synchronizers compare nanoseconds.
 """
 
 from __future__ import annotations
@@ -61,15 +61,15 @@ def normalize_typename(typename: str) -> str:
 
 # ---------------------------------------------------------------------------------------------- stamps
 def stamp_to_ns(stamp: Any) -> int:
-    """Float seconds or a stamp message (`sec`, `nanosec`) -> integer nanoseconds."""
+    """Integer nanoseconds, a stamp message (`sec`, `nanosec`) or float seconds -> integer nanoseconds."""
     if hasattr(stamp, "sec") and hasattr(stamp, "nanosec"):
         return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
     if isinstance(stamp, (bool, np.bool_)) or not isinstance(stamp, (int, float, np.integer, np.floating)):
-        raise TypeError(f"stamp must be float seconds or a stamp message, got {type(stamp).__name__}")
+        raise TypeError(f"stamp must be integer ns, a stamp message or float seconds, got {type(stamp).__name__}")
+    if isinstance(stamp, (int, np.integer)):
+        return int(stamp)
     if not math.isfinite(stamp):
         raise ValueError(f"stamp must be finite, got {stamp}")
-    if isinstance(stamp, (int, np.integer)):
-        return int(stamp) * 1_000_000_000
     seconds = float(stamp)
     whole = math.floor(seconds)  # split first: the fraction is exact, seconds * 1e9 would round to 256 ns
     return whole * 1_000_000_000 + round((seconds - whole) * 1e9)
@@ -83,7 +83,7 @@ def stamp_to_sec(stamp: Any) -> float:
 
 
 def split_stamp(stamp: Any) -> tuple[int, int]:
-    """Float seconds or a stamp message -> (sec, nanosec) with 0 <= nanosec < 1e9 (sec may be negative)."""
+    """A stamp (see `stamp_to_ns`) -> (sec, nanosec) with 0 <= nanosec < 1e9 (sec may be negative)."""
     sec, nanosec = divmod(stamp_to_ns(stamp), 1_000_000_000)
     if not -(2**31) <= sec < 2**31:
         raise ValueError(f"stamp {sec} s does not fit builtin_interfaces/Time (int32 seconds)")
@@ -108,7 +108,7 @@ class MessageFactory(ABC):
         """
 
     def time(self, stamp: Any) -> Any:
-        """builtin_interfaces/Time from float seconds or a stamp message (copied exactly)."""
+        """builtin_interfaces/Time from a stamp (integer ns, a stamp message or float seconds), exactly."""
         sec, nanosec = split_stamp(stamp)
         return self.make("builtin_interfaces/msg/Time", sec=sec, nanosec=nanosec)
 

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from msg_adapters.factory import MessageFactory, stamp_to_sec
+from msg_adapters.factory import MessageFactory, stamp_to_ns
 from msg_adapters.pointcloud2 import POINTFIELD_DTYPES, PointCloudError, make_pointcloud2, read_fields
 from smplify3d_ros.keypoints import COCO17_NAMES, KP, NUM_KEYPOINTS
 
@@ -144,7 +144,7 @@ class KeypointSet:
     keypoints: np.ndarray  # (P, 17, 3) float64: u, v (px), score in [0, 1]; missing joints are (0, 0, 0)
     person_ids: np.ndarray  # (P,) int64 detector track ids, -1 where the detector gave none
     frame_id: str = ""
-    stamp: float = 0.0  # s
+    stamp_ns: int = 0  # the header's stamp, integer ns
     dropped_joints: int = 0  # points with a joint index outside the format: ignored
     duplicate_joints: int = 0  # repeated (person, joint) points: the highest score was kept
     nan_points: int = 0  # points with non-finite u or v: kept as missing (score 0)
@@ -153,7 +153,7 @@ class KeypointSet:
         return len(self.person_ids)
 
 
-def _empty(frame_id: str, stamp: float) -> KeypointSet:
+def _empty(frame_id: str, stamp: int) -> KeypointSet:
     return KeypointSet(np.zeros((0, NUM_KEYPOINTS, 3)), np.zeros(0, np.int64), frame_id, stamp)
 
 
@@ -173,7 +173,7 @@ def read_keypoints(msg: Any, keypoint_format: str | KeypointFormat = "coco17") -
     for a missing `u`, `v` or `joint` field, non-integer `joint` / `person` fields or a malformed cloud.
     """
     fmt = get_keypoint_format(keypoint_format)
-    frame_id, stamp = str(msg.header.frame_id), stamp_to_sec(msg.header.stamp)
+    frame_id, stamp = str(msg.header.frame_id), stamp_to_ns(msg.header.stamp)
     if int(msg.width) * int(msg.height) == 0:
         return _empty(frame_id, stamp)
     present = {str(f.name) for f in msg.fields}

@@ -13,6 +13,7 @@ import numpy as np
 
 from msg_adapters.factory import MessageFactory, resolve_factory
 from msg_adapters.pointcloud2 import make_pointcloud2
+from smplify3d_ros.geometry import rotvec_to_quaternion
 from smplify3d_ros.keypoints import HIP_INDICES, NUM_KEYPOINTS
 from smplify3d_ros.types import BodyFit
 
@@ -61,15 +62,6 @@ def fits_to_body_points_cloud(
     )
 
 
-def rotvec_to_quaternion_xyzw(rotvec: np.ndarray) -> np.ndarray:
-    """Axis-angle (rad) -> unit quaternion in ROS order (x, y, z, w), w >= 0."""
-    r = np.asarray(rotvec, dtype=np.float64).reshape(3)
-    angle = float(np.linalg.norm(r))
-    # sin(a/2)/a written with np.sinc stays exact near a = 0.
-    q = np.concatenate([r * 0.5 * np.sinc(angle / (2 * np.pi)), [np.cos(angle / 2)]])
-    return q if q[3] >= 0 else -q
-
-
 def fits_to_pose_array(
     fits: Sequence[BodyFit], stamp: Any, frame_id: str, factory: MessageFactory | None = None
 ) -> Any:
@@ -84,7 +76,7 @@ def fits_to_pose_array(
     for fit in fits:
         kp = np.asarray(fit.keypoints3d, dtype=np.float64).reshape(-1, 3)
         pelvis = kp[list(HIP_INDICES)].mean(axis=0)
-        q = rotvec_to_quaternion_xyzw(fit.params.root_orient)
+        q = rotvec_to_quaternion(fit.params.root_orient)
         poses.append(factory.make(
             "geometry_msgs/msg/Pose",
             position=factory.make("geometry_msgs/msg/Point", x=pelvis[0], y=pelvis[1], z=pelvis[2]),

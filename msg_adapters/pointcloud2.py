@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from msg_adapters._buffer import as_bytes
-from msg_adapters.factory import MessageFactory, resolve_factory, stamp_to_sec
+from msg_adapters.factory import MessageFactory, resolve_factory, stamp_to_ns
 
 # sensor_msgs/PointField datatypes.
 INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)
@@ -44,7 +44,7 @@ class CloudData:
     width: int = 0  # the message's width and height (index = row * width + column)
     height: int = 0
     frame_id: str = ""
-    stamp: float = 0.0  # s
+    stamp_ns: int = 0  # the header's stamp, integer ns
 
     def __len__(self) -> int:
         return len(self.xyz)
@@ -161,7 +161,7 @@ def read_points(msg: Any, extra_fields: Iterable[str] = (), drop_origin: bool = 
     extra = [name for name in dict.fromkeys(extra_fields) if name not in _COORDS]
     height, width = int(msg.height), int(msg.width)
     header = msg.header
-    frame_id, stamp = str(header.frame_id), stamp_to_sec(header.stamp)
+    frame_id, stamp = str(header.frame_id), stamp_to_ns(header.stamp)
     if height * width == 0:
         # An empty cloud is "nothing seen", whatever fields it declares.
         fields = {f.name: f for f in _fields(msg)}
@@ -204,7 +204,7 @@ def make_pointcloud2(
 
     Columns are 1-D arrays of equal length with dtype int8, uint8, int16, uint16, int32, uint32, float32 or
     float64 (the field's datatype follows the dtype; cast other dtypes first). `is_dense` is set when no
-    float value is NaN or infinite. `stamp` is float seconds or a stamp message.
+    float value is NaN or infinite. `stamp`: integer ns, a stamp message or float seconds.
     """
     factory = resolve_factory(factory)
     if not columns:

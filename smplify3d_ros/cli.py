@@ -18,11 +18,11 @@ import time
 
 # subcommand -> (module, help); each module has add_arguments(parser) and run(args) -> int
 COMMANDS = {
-    "replay": ("smplify3d_ros.replay", "fit every frame of a rosbag2 (MCAP or sqlite3) and write the results"),
+    "replay": ("smplify3d_ros.replay.cli", "fit every frame of a rosbag2 (MCAP or sqlite3) and write the results"),
     "make-bags": ("smplify3d_ros.sim.bags", "regenerate the synthetic Jackal/VLP-16 bags with ground truth"),
-    "bench": ("smplify3d_ros.eval.bench", "accuracy benchmark on simulated scenes (Markdown + JSON)"),
+    "bench": ("smplify3d_ros.eval.bench.cli", "accuracy benchmark on simulated scenes (Markdown + JSON)"),
     "bench-speed": ("smplify3d_ros.eval.bench_speed", "per-person fit time and MPJPE of the profiles"),
-    "bench-extract": ("smplify3d_ros.lidar.bench", "precision/recall of person point extraction"),
+    "bench-extract": ("smplify3d_ros.eval.extraction", "precision/recall of person point extraction"),
 }
 
 

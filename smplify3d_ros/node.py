@@ -1,14 +1,16 @@
 """The ROS 2 node: parameters, subscriptions, synchronization, a fitting worker, publishers.
 
-Wiring only: messages are synchronized here and handed to a worker thread, which runs the frame pipeline
-shared with replay (`frame_pipeline.FramePipeline`: convert, extract, fit, build output messages); the node
-publishes what comes back. The worker's queue is bounded (`worker_queue_size`, latest-frame policy): when
-fitting is slower than the sensors, older frames are dropped and counted, never queued without bound.
+Wiring only: messages are synchronized here (`runtime.sync`, the replay's synchronizer) and handed to a
+worker thread, which runs the step shared with replay (`runtime.processor.MessageProcessor`: convert,
+the core frame path, output messages); the node publishes what comes back. The worker's queue is
+bounded (`worker_queue_size`, latest-frame policy): when fitting is slower than the sensors, older
+frames are dropped and counted, never queued without bound.
 
 Parameters: `params_file` names a profile (`jackal_vlp16`, `ouster64`, ...) or a YAML path; every key of
-its `node` section is declared as a ROS parameter of the same dotted name (`sync.slop_s`), and so are
-`fitting.body.model`, `fitting.profile` and `fitting.device`. ROS parameters (command line, launch file)
-override the profile; the result is validated like any configuration (errors name the key).
+its `node` section is declared as a ROS parameter of the same dotted name (`sync.slop_s`), every key of
+its `people` section as `people.<key>`, and so are `fitting.body.model`, `fitting.profile` and
+`fitting.device`. ROS parameters (command line, launch file) override the profile; the result is
+validated like any configuration (errors name the key).
 """
 
 from __future__ import annotations
@@ -27,18 +29,16 @@ from rclpy.node import Node
 
 from msg_adapters.factory import RclpyFactory
 from smplify3d_ros.config import Config, ConfigError, load_config, params_dir, resolve_profile, to_dict
-from smplify3d_ros.frame_pipeline import (
-    NODE_NAME,
-    OUTPUT_TYPES,
-    OUTPUTS,
-    DiagnosticsReporter,
-    FrameMessages,
-    FramePipeline,
-    Transforms,
-)
-from smplify3d_ros.sync import ApproximateTimeSync
+from smplify3d_ros.runtime.config import NodeConfig, load_node_config
+from smplify3d_ros.runtime.messages import FrameMessages
+from smplify3d_ros.runtime.outputs import DIAGNOSTICS_TYPE, NODE_NAME, OUTPUT_TYPES, OUTPUTS
+from smplify3d_ros.runtime.processor import MessageProcessor
+from smplify3d_ros.runtime.stats import DiagnosticsReporter
+from smplify3d_ros.runtime.sync import make_synchronizer, sync_values
+from smplify3d_ros.runtime.transforms import Transforms, transform_msg_matrix
 
 FITTING_PARAMETERS = ("fitting.body.model", "fitting.profile", "fitting.device")
+CORE_PARAMETER_SECTIONS = ("people",)  # core sections declared whole as ROS parameters
 
 
 # -- parameters -------------------------------------------------------------------------------------------
@@ -82,36 +82,31 @@ def unflatten(values: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def parameter_defaults(config: Config) -> dict[str, Any]:
-    """ROS parameter name -> value: the node section's keys, and the fitting keys exposed to ROS."""
-    values = flatten(to_dict(config.node))
+def parameter_defaults(config: Config, node: NodeConfig) -> dict[str, Any]:
+    """ROS parameter name -> value: the node section's keys, and the core keys exposed to ROS."""
+    values = flatten(to_dict(node))
     fitting = flatten(to_dict(config.fitting), "fitting.")
     values.update({name: fitting[name] for name in FITTING_PARAMETERS})
+    for name in CORE_PARAMETER_SECTIONS:
+        values.update(flatten(to_dict(getattr(config, name)), f"{name}."))
     return values
 
 
 def parameter_descriptions() -> dict[str, str]:
     base = params_dir() / "base"
     out = yaml_comments(base / "node.yaml")
-    out.update({f"fitting.{k}": v for k, v in yaml_comments(base / "fitting.yaml").items()})
+    for name in ("fitting", *CORE_PARAMETER_SECTIONS):
+        out.update({f"{name}.{k}": v for k, v in yaml_comments(base / f"{name}.yaml").items()})
     return out
 
 
 def overrides_from_parameters(values: dict[str, Any]) -> dict[str, Any]:
-    """ROS parameter values -> a `load_config` overrides mapping."""
-    nested = unflatten({k: v for k, v in values.items() if not k.startswith("fitting.")})
-    fitting = unflatten({k[len("fitting."):]: v for k, v in values.items() if k.startswith("fitting.")})
-    return {"node": nested, "fitting": fitting}
-
-
-def _matrix_from_transform(t: Any) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    q, p = t.transform.rotation, t.transform.translation
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = (p.x, p.y, p.z)
-    return T
+    """ROS parameter values -> a `load_sections` overrides mapping (sections fitting, people, node)."""
+    core = ("fitting", *CORE_PARAMETER_SECTIONS)
+    out: dict[str, Any] = {"node": unflatten({k: v for k, v in values.items() if k.split(".")[0] not in core})}
+    for name in core:
+        out[name] = unflatten({k[len(name) + 1:]: v for k, v in values.items() if k.split(".")[0] == name})
+    return out
 
 
 # -- the node ---------------------------------------------------------------------------------------------
@@ -155,39 +150,38 @@ class Smplify3dNode(Node):
 
     def __init__(self, fitter: Any = None, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self.config = self._load_config()
+        self.config, self.node_config = self._load_config()
         self.factory = RclpyFactory()
-        node_cfg = self.config.node
+        node_cfg = self.node_config
         self.get_logger().info(
             f"body model {self.config.fitting.body.model}, optimizer profile {self.config.fitting.profile}, "
             f"device {self.config.fitting.device}; loading the body model")
-        self.pipeline = FramePipeline(self.config, self.factory, fitter=fitter, transforms=self._transforms(),
-                                      log=self.get_logger())
+        self.processor = MessageProcessor(self.config, node_cfg, self.factory, fitter=fitter,
+                                          transforms=self._transforms(), log=self.get_logger())
         self._output_pubs = {
             name: self.create_publisher(self.factory.message_class(OUTPUT_TYPES[name]), f"~/{name}", 10)
             for name in OUTPUTS if getattr(node_cfg.publish, name)
         }
         self._diagnostics_pub = self.create_publisher(
-            self.factory.message_class("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics", 10)
+            self.factory.message_class(DIAGNOSTICS_TYPE), "/diagnostics", 10)
         self._reporter = DiagnosticsReporter(f"{self.get_name()}: fitting", "smplify3d_ros")
-        self._pipeline_values: dict[str, Any] = self.pipeline.diagnostic_values()
+        self._processor_values: dict[str, Any] = self.processor.stats.values()
         self._queue = FrameQueue(node_cfg.worker_queue_size)
         self._stopping = threading.Event()
         self.worker_errors = 0
         self._inputs: list[tuple[str, str]] = []  # (name, topic)
         self._received: dict[str, int] = {}
         self._last_rates: tuple[float, dict[str, int]] = (time.monotonic(), {})
-        self.sync: ApproximateTimeSync | None = None
         self._subscribe()
         self._worker = threading.Thread(target=self._work, name="smplify3d_fitting", daemon=True)
         self._worker.start()
         self._timer = self.create_timer(node_cfg.diagnostics_period_s, self._publish_diagnostics)
         self.get_logger().info(
             "ready: " + ", ".join(f"{name} <- {topic}" for name, topic in self._inputs)
-            + f"; sync {'message_filters' if self.sync is None else 'built-in'}")
+            + f"; sync {type(self.sync).__name__}")
 
     # -- set-up -------------------------------------------------------------------------------------------
-    def _load_config(self) -> Config:
+    def _load_config(self) -> tuple[Config, NodeConfig]:
         from rcl_interfaces.msg import ParameterDescriptor
 
         default_profile = "jackal_vlp16"
@@ -197,21 +191,22 @@ class Smplify3dNode(Node):
                                 read_only=True)).value
         try:
             resolve_profile(profile)
-            config = load_config(profile)
+            config, node = load_config(profile), load_node_config(profile)
         except ConfigError as e:
             raise ConfigError(f"params_file {profile!r}: {e}") from None
         descriptions = parameter_descriptions()
         values = {}
-        for name, default in parameter_defaults(config).items():
+        for name, default in parameter_defaults(config, node).items():
             descriptor = ParameterDescriptor(description=descriptions.get(name, ""), read_only=True)
             try:
                 values[name] = self.declare_parameter(name, default, descriptor).value
             except Exception as e:  # noqa: BLE001 - rclpy raises several types for a bad override
                 raise ConfigError(f"parameter {name!r}: {e}") from None
-        return load_config(profile, overrides_from_parameters(values))
+        overrides = overrides_from_parameters(values)
+        return load_config(profile, overrides), load_node_config(profile, overrides)
 
     def _transforms(self) -> Transforms:
-        ext = self.config.node.extrinsic
+        ext = self.node_config.extrinsic
         lookup = None
         if ext.use_tf:
             try:
@@ -224,22 +219,22 @@ class Smplify3dNode(Node):
                 lookup = self._tf_lookup
         return Transforms(ext, lookup, log=self.get_logger())
 
-    def _tf_lookup(self, target: str, source: str, stamp: Any) -> np.ndarray | None:
+    def _tf_lookup(self, target: str, source: str, stamp_ns: int) -> np.ndarray | None:
         import tf2_ros
         from rclpy.duration import Duration
         from rclpy.time import Time
 
         try:
             t = self._tf_buffer.lookup_transform(
-                target, source, Time(), timeout=Duration(seconds=self.config.node.extrinsic.tf_timeout_s))
+                target, source, Time(), timeout=Duration(seconds=self.node_config.extrinsic.tf_timeout_s))
         except tf2_ros.TransformException:
             return None
-        return _matrix_from_transform(t)
+        return transform_msg_matrix(t)
 
     def _subscribe(self) -> None:
         from rclpy.qos import qos_profile_sensor_data
 
-        cfg = self.config.node
+        cfg = self.node_config
         topics = cfg.topics
         msg = self.factory.message_class
         inputs: list[tuple[str, str, type]] = []
@@ -254,27 +249,13 @@ class Smplify3dNode(Node):
         self._inputs = [(name, topic) for name, topic, _ in inputs]
         self._received = {name: 0 for name, _ in self._inputs}
         names = [name for name, _, _ in inputs]
-        on_set = partial(self._on_synced, names)
-        message_filters = None
-        if cfg.sync.use_message_filters:
-            try:
-                import message_filters
-            except ImportError:
-                message_filters = None
-        if message_filters is not None:
-            subs = []
-            for name, topic, cls in inputs:
-                sub = message_filters.Subscriber(self, cls, topic, qos_profile=qos_profile_sensor_data)
-                sub.registerCallback(partial(self._count, name))
-                subs.append(sub)
-            self._mf_sync = message_filters.ApproximateTimeSynchronizer(subs, cfg.sync.queue_size, cfg.sync.slop_s)
-            self._mf_sync.registerCallback(on_set)
-        else:
-            self.sync = ApproximateTimeSync(len(inputs), cfg.sync.slop_s, cfg.sync.queue_size, on_set)
-            self._subscriptions_in = [
-                self.create_subscription(cls, topic, partial(self._on_input, i, name), qos_profile_sensor_data)
-                for i, (name, topic, cls) in enumerate(inputs)
-            ]
+        self.sync = make_synchronizer(len(inputs), cfg.sync.slop_s, cfg.sync.queue_size,
+                                      partial(self._on_synced, names), cfg.sync.use_message_filters,
+                                      self.get_logger())
+        self._subscriptions_in = [
+            self.create_subscription(cls, topic, partial(self._on_input, i, name), qos_profile_sensor_data)
+            for i, (name, topic, cls) in enumerate(inputs)
+        ]
         if topics.init_bodies:
             self._received["init_bodies"] = 0
             self._inputs.append(("init_bodies", topics.init_bodies))
@@ -282,23 +263,23 @@ class Smplify3dNode(Node):
                 msg("std_msgs/msg/String"), topics.init_bodies, self._on_init_bodies, 10)
 
     # -- callbacks (keep short: count, hand off) ----------------------------------------------------------
-    def _count(self, name: str, _msg: Any = None) -> None:
-        self._received[name] += 1
-
     def _on_input(self, index: int, name: str, msg: Any) -> None:
         self._received[name] += 1
-        assert self.sync is not None
-        self.sync.add(index, msg)
+        try:
+            self.sync.add(index, msg)
+        except Exception as e:  # noqa: BLE001 - a message without a usable header must not stop spinning
+            self.processor.stats.drops["bad_stamp"] += 1
+            self.get_logger().warning(f"{name}: dropped a message without a usable stamp ({type(e).__name__})")
 
     def _on_init_bodies(self, msg: Any) -> None:
         self._received["init_bodies"] += 1
-        self.pipeline.add_init_bodies(msg)
+        self.processor.add_init_bodies(msg)
 
     def _on_synced(self, names: list[str], *msgs: Any) -> None:
         by_name = dict(zip(names, msgs, strict=True))
         self._queue.put(FrameMessages(
             camera_info=by_name["camera_info"], points=by_name["points"], keypoints=by_name["keypoints"],
-            image=by_name.get("image"), compressed=self.config.node.topics.compressed,
+            image=by_name.get("image"), compressed=self.node_config.topics.compressed,
             received_s=time.monotonic(),
         ))
 
@@ -309,9 +290,9 @@ class Smplify3dNode(Node):
             if msgs is None:
                 continue
             try:
-                self.pipeline.stats.record("queue", time.monotonic() - msgs.received_s)
-                result = self.pipeline.process(msgs)  # never raises for bad input
-                self._pipeline_values = self.pipeline.diagnostic_values()
+                self.processor.stats.record("queue", time.monotonic() - msgs.received_s)
+                result = self.processor.process(msgs)  # never raises for bad input
+                self._processor_values = self.processor.stats.values()
                 if self._stopping.is_set():
                     break
                 for name, out in result.outputs.items():
@@ -341,17 +322,11 @@ class Smplify3dNode(Node):
     def diagnostic_values(self) -> dict[str, Any]:
         values: dict[str, Any] = {f"rate_hz.{name}": rate for name, rate in self.input_rates().items()}
         values.update({f"received.{name}": n for name, n in self._received.items()})
-        if self.sync is not None:
-            s = self.sync.stats
-            values.update({
-                "sync.matched": s.matched, "sync.dropped_unmatched": s.dropped_unmatched,
-                "sync.dropped_overflow": s.dropped_overflow, "sync.dropped_duplicate": s.dropped_duplicate,
-                "sync.dropped_reset": s.dropped_reset, "sync.time_resets": s.time_resets,
-            })
+        values.update(sync_values(self.sync))
         values["queue.dropped_stale"] = self._queue.dropped
         values["worker_errors"] = self.worker_errors
         values["queue.length"] = len(self._queue)
-        values.update(self._pipeline_values)
+        values.update(self._processor_values)
         return values
 
     def _publish_diagnostics(self) -> None:

@@ -2,7 +2,8 @@
 
 Frames: "camera" is the camera optical frame (REP-103: x right, y down, z forward); "lidar" is the
 sensor frame of the LiDAR driver. Units: metres, radians, seconds; pixels for image coordinates.
-Rotations are axis-angle vectors (radians) unless named otherwise.
+Rotations are axis-angle vectors (radians) unless named otherwise. Stamps are integer nanoseconds
+(ROS time: sec * 10^9 + nanosec), exact from the message to the output.
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ class BodyParams:
 class Frame:
     """Everything one synchronized set of sensor messages says, before any per-person processing."""
 
-    stamp: float  # s, the image's stamp
+    stamp_ns: int  # the image's stamp, integer ns
     camera: CameraModel
     keypoints: np.ndarray  # (P, 17, 3) float64: u, v (px, as detected, i.e. distorted), score in [0, 1]
     person_ids: np.ndarray  # (P,) int64 track ids, -1 when the detector has none
@@ -71,7 +72,6 @@ class PersonObservation:
     keypoints: np.ndarray  # (17, 3) float64: undistorted u, v (px) and score
     bbox: np.ndarray  # (4,) float64 x_min, y_min, x_max, y_max (px, undistorted)
     points: np.ndarray  # (M, 3) float32 the person's LiDAR points in the camera frame, m
-    density: float = 0.0  # points per square metre of the body's projected area (thesis Eq. 9)
     init: BodyParams | None = None  # external initial estimate, if any
 
 
@@ -105,6 +105,14 @@ class BodyFit:
     joints: np.ndarray  # (J, 3) float32 model joint positions, m, camera frame
     quality: FitQuality
     flags: set[str] = field(default_factory=set)
+    # (3,) float64 the point `params.root_orient` rotates the body about (m); None: `params.transl`, which
+    # is where Anny's convention puts it (the fitter always sets it; SMPL's is its root joint)
+    rotation_center: np.ndarray | None = None
+
+    @property
+    def center(self) -> np.ndarray:
+        """The rotation center (see `rotation_center`)."""
+        return self.params.transl if self.rotation_center is None else self.rotation_center
 
     @property
     def model(self) -> str:

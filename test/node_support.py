@@ -41,8 +41,15 @@ def config():
 
 
 @lru_cache(maxsize=1)
+def node_config():
+    from smplify3d_ros.runtime.config import load_node_config
+
+    return load_node_config()
+
+
+@lru_cache(maxsize=1)
 def fitter():
-    from smplify3d_ros.fitting.pipeline import Fitter
+    from smplify3d_ros.fitting.fitter import Fitter
 
     return Fitter(config().fitting)
 
@@ -57,7 +64,7 @@ def workdir() -> Path:
 @cache
 def fixture_bag(storage: str) -> bag_fixture.FixtureBag:
     """mcap: two people, /tf_static present; sqlite3: one person, no /tf_static. Two frames each."""
-    T = config().node.extrinsic.T_cam_lidar()
+    T = node_config().extrinsic.T_cam_lidar()
     path = workdir() / f"fixture_{storage}"
     if storage == "mcap":
         return bag_fixture.write_fixture_bag(path, fitter().model, T, "mcap", n_frames=2, n_people=2, seed=3,
@@ -79,7 +86,8 @@ def replayed_bag(path: str, name: str = "replayed"):
 
     out = workdir() / f"{name}.mcap"
     png = workdir() / f"{name}.png"
-    return replay_bag(path, out, png=png, progress=False, config=config(), fitter=fitter())
+    return replay_bag(path, out, png=png, progress=False, config=config(), node_config=node_config(),
+                      fitter=fitter())
 
 
 REPO = Path(__file__).resolve().parent.parent
@@ -96,15 +104,15 @@ def ground_truth(path: Path) -> dict[int, list]:
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
-    from smplify3d_ros.replay import GROUND_TRUTH_TOPIC, parse_ground_truth
+    from smplify3d_ros.eval.truth import GROUND_TRUTH_TOPIC, parse_truth_document
 
     store = get_typestore(Stores.ROS2_JAZZY)
     out = {}
     with Reader(path) as reader:
         conns = [c for c in reader.connections if c.topic == GROUND_TRUTH_TOPIC]
         for conn, _, raw in reader.messages(connections=conns):
-            stamp, _, bodies = parse_ground_truth(store.deserialize_cdr(raw, conn.msgtype).data, fitter())
-            out[stamp] = bodies
+            truth = parse_truth_document(store.deserialize_cdr(raw, conn.msgtype).data)
+            out[truth.stamp_ns] = truth.bodies
     return out
 
 
@@ -210,8 +218,8 @@ def running_node(parameters: dict[str, Any] | None = None, share_fitter: bool = 
     node = recorder = executor = thread = None
     try:
         node = create_node(parameters or {}, fitter=fitter() if share_fitter else None)
-        topics = {"image": node.config.node.topics.image, "camera_info": node.config.node.topics.camera_info,
-                  "points": node.config.node.topics.points, "keypoints": node.config.node.topics.keypoints}
+        t = node.node_config.topics
+        topics = {"image": t.image, "camera_info": t.camera_info, "points": t.points, "keypoints": t.keypoints}
         recorder = Recorder(topics)
         executor = SingleThreadedExecutor()  # as `rclpy.spin` in the entry point; callbacks are short
         executor.add_node(node)

@@ -44,7 +44,8 @@ def wire_content(msg, typename):
 def test_stamp_float_and_message_roundtrip():
     assert split_stamp(1.5) == (1, 500_000_000)
     assert split_stamp(-0.25) == (-1, 750_000_000)
-    assert stamp_to_ns(3) == 3_000_000_000
+    assert stamp_to_ns(3) == 3, "integers are nanoseconds"
+    assert stamp_to_ns(3.0) == 3_000_000_000
     # Float seconds near today's epoch: the fraction is kept to well under a microsecond.
     sec, ns = split_stamp(1_700_000_000.123456)
     assert sec == 1_700_000_000 and abs(ns - 123_456_000) < 300

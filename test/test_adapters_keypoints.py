@@ -80,7 +80,7 @@ def test_write_read_roundtrip(factory, fmt):
     np.testing.assert_allclose(out.keypoints, kp, atol=1e-4)  # float32 on the wire
     assert out.person_ids.tolist() == [7, -1, -1] and out.person_ids.dtype == np.int64
     assert (out.dropped_joints, out.duplicate_joints, out.nan_points) == (0, 0, 0)
-    assert out.stamp == 2.5 and out.frame_id == "cam"
+    assert out.stamp_ns == 2_500_000_000 and out.frame_id == "cam"
 
 
 @needs_rclpy

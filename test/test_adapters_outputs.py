@@ -11,9 +11,9 @@ from msg_adapters.outputs import (
     fits_to_body_points_cloud,
     fits_to_joints_cloud,
     fits_to_pose_array,
-    rotvec_to_quaternion_xyzw,
 )
 from msg_adapters.pointcloud2 import read_fields
+from smplify3d_ros.geometry import rotvec_to_quaternion
 from smplify3d_ros.keypoints import KP
 from smplify3d_ros.types import BodyFit, BodyParams, FitQuality
 
@@ -83,7 +83,7 @@ def _rodrigues(r, v):
 
 @pytest.mark.parametrize("rotvec", [(0, 0, 0), (1e-9, 0, 0), (0.3, -0.2, 0.9), (0, np.pi, 0), (2, 2, 1)])
 def test_rotvec_to_quaternion(rotvec):
-    q = rotvec_to_quaternion_xyzw(np.array(rotvec, float))
+    q = rotvec_to_quaternion(np.array(rotvec, float))
     assert np.linalg.norm(q) == pytest.approx(1.0) and q[3] >= 0
     v = np.array([0.3, -1.0, 2.0])
     np.testing.assert_allclose(_rotate(q, v), _rodrigues(np.array(rotvec, float), v), atol=1e-12)

@@ -94,7 +94,7 @@ def test_ouster_organized_with_invalid_returns(factory):
     np.testing.assert_array_equal(cloud.fields["t"], rec["t"][keep])
     assert cloud.fields["ring"].dtype == np.uint16 and cloud.fields["range"].dtype == np.uint32
     assert cloud.xyz.dtype == np.float32 and cloud.xyz.shape == (len(keep), 3)
-    assert (cloud.width, cloud.height, cloud.frame_id, cloud.stamp) == (w, h, "lidar", 7.25)
+    assert (cloud.width, cloud.height, cloud.frame_id, cloud.stamp_ns) == (w, h, "lidar", 7_250_000_000)
     # Zero points are kept on request; NaN/inf never.
     assert len(read_points(msg, drop_origin=False)) == h * w - 2
 
@@ -137,7 +137,7 @@ def test_duck_typed_message_with_list_data_and_count_zero():
     )
     cloud = read_points(msg)
     np.testing.assert_array_equal(cloud.xyz, expected_xyz(rec))
-    assert cloud.stamp == 1.5
+    assert cloud.stamp_ns == 1_500_000_000
 
 
 @needs_rclpy

@@ -21,6 +21,7 @@ from msg_adapters import (  # noqa: E402
 )
 from msg_adapters.pointcloud2 import FLOAT32, UINT16  # noqa: E402
 from smplify3d_ros.camera import project_points, transform_points  # noqa: E402
+from smplify3d_ros.sim.config import default_sim_config  # noqa: E402
 from smplify3d_ros.sim.bags import (  # noqa: E402
     BAGS,
     BAGS_DIR,
@@ -39,8 +40,15 @@ pytestmark = pytest.mark.skipif(not PRESENT, reason="no bags in bags/ (run `smpl
 
 
 @pytest.fixture(scope="module")
-def topics(config) -> BagTopics:
-    return BagTopics.from_config(config.node)
+def node_config():
+    from smplify3d_ros.runtime.config import load_node_config
+
+    return load_node_config()
+
+
+@pytest.fixture(scope="module")
+def topics(node_config) -> BagTopics:
+    return BagTopics.from_config(node_config)
 
 
 @cache
@@ -155,15 +163,15 @@ def test_images_and_camera_info(name, topics):
 
 
 @pytest.mark.parametrize("name", PRESENT)
-def test_tf_static_matches_the_node_extrinsic(name, config, topics):
+def test_tf_static_matches_the_node_extrinsic(name, node_config, topics):
     transforms = tf_transforms(name)
     T = transforms[(topics.lidar_frame, topics.camera_frame)]
-    assert np.allclose(T, config.node.extrinsic.T_lidar_cam(), atol=1e-6)
+    assert np.allclose(T, node_config.extrinsic.T_lidar_cam(), atol=1e-6)
     assert ("base_link", topics.lidar_frame) in transforms
 
 
 @pytest.mark.parametrize("name", PRESENT)
-def test_ground_truth_matches_the_keypoints(name, config, topics):
+def test_ground_truth_matches_the_keypoints(name, topics):
     """Detected ids are the keypoint topic's ids; the truth's 3D keypoints, projected, lie within the
     detector's noise of the published keypoints."""
     truth = read_ground_truth(BAGS_DIR / name)
@@ -171,7 +179,7 @@ def test_ground_truth_matches_the_keypoints(name, config, topics):
     infos = msgs[topics.camera_info]
     keypoint_msgs = msgs[topics.keypoints]
     assert list(truth) == [log for log, _ in keypoint_msgs]
-    detector = config.sim.detector
+    detector = default_sim_config().detector
     normalized = []
     for (_, info), (stamp, kp_msg) in zip(infos, keypoint_msgs, strict=True):
         camera = camera_info_to_model(info)
@@ -197,7 +205,6 @@ def test_ground_truth_matches_the_keypoints(name, config, topics):
 def test_ground_truth_geometry_matches_the_scan_and_the_model(name, topics, anny_model):
     """The truth's vertices lie on the LiDAR returns labelled as the person, and are the body model's
     vertices for the truth's parameters."""
-    import torch
     from scipy.spatial import cKDTree
 
     truth = read_ground_truth(BAGS_DIR / name)
@@ -214,17 +221,9 @@ def test_ground_truth_geometry_matches_the_scan_and_the_model(name, topics, anny
                 assert hits >= 0.9 * body.lidar_points, (stamp, body.person_id, hits, body.lidar_points)
                 checked += 1
             if k == 0:
-                p = body.params
-                dtype = anny_model.anat_frames.dtype
-                with torch.no_grad():
-                    out = anny_model(
-                        *(
-                            torch.as_tensor(a, dtype=dtype)[None]
-                            for a in (p.shape, p.pose, p.root_orient, p.transl)
-                        )
-                    )
-                assert np.abs(out.vertices[0].double().numpy() - body.vertices).max() < 2e-3
-                assert np.abs(out.keypoints[0].double().numpy() - body.keypoints3d).max() < 2e-3
+                posed = anny_model.posed([body.params])[0]
+                assert np.abs(posed.vertices - body.vertices).max() < 2e-3
+                assert np.abs(posed.keypoints3d - body.keypoints3d).max() < 2e-3
     assert checked > 0
 
 

@@ -4,7 +4,7 @@ import numpy as np
 
 from smplify3d_ros.config import load_config
 from smplify3d_ros.eval.synthetic import default_intrinsics, make_person, perturb
-from smplify3d_ros.fitting.pipeline import FitOptions, Fitter
+from smplify3d_ros.fitting.fitter import FitOptions, Fitter
 from smplify3d_ros.types import FLAG_DIVERGED, FLAG_EXTERNAL_INIT, FLAG_IMAGE_ONLY
 
 # The synthetic person has its LiDAR points sampled uniformly over the visible surface, for which

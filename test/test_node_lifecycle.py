@@ -54,10 +54,10 @@ def test_ros_parameters_override_the_profile(ros):
                         "topics.compressed_image": "/camera/color/image_raw/compressed", "fitting.profile": "thesis"},
                        fitter=node_support.fitter())
     try:
-        cfg = node.config
-        assert cfg.node.topics.points == "/ouster/points", "the profile's value"
+        cfg, node_cfg = node.config, node.node_config
+        assert node_cfg.topics.points == "/ouster/points", "the profile's value"
         assert cfg.lidar.vertical_resolution_deg == pytest.approx(0.71)
-        assert cfg.node.sync.slop_s == pytest.approx(0.02), "the ROS parameter's value"
+        assert node_cfg.sync.slop_s == pytest.approx(0.02), "the ROS parameter's value"
         assert cfg.fitting.profile == "thesis"
         names = {name for name, _ in node.get_topic_names_and_types()}
         assert "/smplify3d/body_points" not in names
@@ -68,7 +68,7 @@ def test_ros_parameters_override_the_profile(ros):
 
 
 @pytest.mark.parametrize("parameters, message", [
-    ({"max_people": 0}, "max_people must be"),
+    ({"people.max_people": 0}, "max_people must be"),
     ({"sync.slop_s": "fast"}, "sync.slop_s"),
     ({"fitting.profile": "nope"}, "profile 'nope'"),
     ({"params_file": "no_such_profile"}, "unknown params profile"),
@@ -151,7 +151,7 @@ def test_ctrl_c_while_fitting_exits_cleanly_without_traceback(ros):
 
 
 def test_configuration_error_exits_2_with_the_key():
-    proc = _start(["-p", "max_people:=0"])
+    proc = _start(["-p", "people.max_people:=0"])
     try:
         out, _ = proc.communicate(timeout=120)
     finally:

@@ -38,7 +38,7 @@ def test_bad_messages_and_bursts_are_dropped_counted_and_bounded():
                     + json.loads(m.data)["stamp"]["nanosec"] == target]
 
         def handled(keys: tuple[str, ...]) -> int:
-            values = {**node._pipeline_values, "sync.time_resets": node.sync.stats.time_resets}
+            values = {**node._processor_values, "sync.time_resets": node.sync.stats.time_resets}
             return sum(int(values.get(key, 0)) for key in keys)
 
         # 1. a good frame first: warms the fitter up and gives the memory baseline

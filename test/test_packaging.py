@@ -71,7 +71,7 @@ def wheel(tmp_path_factory) -> zipfile.ZipFile:
 
 def test_wheel_holds_packages_entry_points_and_share_files(wheel):
     names = set(wheel.namelist())
-    assert "smplify3d_ros/node.py" in names and "smplify3d_ros/replay.py" in names
+    assert "smplify3d_ros/node.py" in names and "smplify3d_ros/replay/run.py" in names
     assert "smplify3d_ros/fitting/pipeline.py" in names and "msg_adapters/pointcloud2.py" in names
     assert "msg_adapters/BODIES_SCHEMA.md" in names
     data = f"smplify3d_ros-{smplify3d_ros.__version__}.data/data/"
@@ -94,6 +94,7 @@ def _launch_source() -> str:
 def test_launch_file_compiles_and_its_arguments_are_node_parameters():
     from smplify3d_ros.config import load_config
     from smplify3d_ros.node import parameter_defaults
+    from smplify3d_ros.runtime.config import load_node_config
 
     source = _launch_source()
     tree = ast.parse(source)
@@ -101,7 +102,7 @@ def test_launch_file_compiles_and_its_arguments_are_node_parameters():
     assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description" for n in tree.body)
     arguments = next(ast.literal_eval(n.value) for n in tree.body
                      if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", "") == "ARGUMENTS")
-    parameters = parameter_defaults(load_config())
+    parameters = parameter_defaults(load_config(), load_node_config())
     for _, name, _ in arguments:
         assert name in parameters, f"launch argument sets unknown parameter {name!r}"
     assert 'executable="smplify3d_node"' in source and 'package=PACKAGE' in source
@@ -139,17 +140,6 @@ def test_profiles_load_and_node_yaml_documents_every_key():
 
     undocumented = [key for key in leaves(base) if not comments.get(key)]
     assert not undocumented, undocumented
-
-
-def test_node_config_has_no_defaults():
-    import dataclasses
-
-    from smplify3d_ros import node_config
-
-    for cls in (node_config.NodeConfig, node_config.TopicsConfig, node_config.SyncConfig,
-                node_config.ExtrinsicConfig, node_config.PublishConfig):
-        for f in dataclasses.fields(cls):
-            assert f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING, (cls, f.name)
 
 
 def test_rviz_config_shows_the_outputs():

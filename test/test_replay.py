@@ -11,7 +11,10 @@ import node_support
 import numpy as np
 import pytest
 
-from smplify3d_ros import replay
+from smplify3d_ros.replay import cli as replay_cli
+from smplify3d_ros.replay import reader as replay_reader
+from smplify3d_ros.replay import replay_bag
+from smplify3d_ros.runtime.transforms import TransformGraph
 
 OUTPUTS = ("/smplify3d/markers", "/smplify3d/joints", "/smplify3d/body_points", "/smplify3d/people",
            "/smplify3d/bodies")
@@ -116,12 +119,12 @@ def test_png_shows_the_fit_over_the_image(storage):
 
 def test_cli_runs_on_a_bag_file_and_prints_the_summary(capsys, tmp_path):
     parser = argparse.ArgumentParser()
-    replay.add_arguments(parser)
+    replay_cli.add_arguments(parser)
     bag = node_support.fixture_bag("sqlite3")
     db3 = next(bag.path.glob("*.db3"))  # a bare .db3 file, without the bag's metadata
     out_dir = tmp_path / "not" / "yet" / "there" / "out"  # missing parents are created
     args = parser.parse_args([str(db3), "-o", str(out_dir), "--max-frames", "1", "--no-progress"])
-    assert replay.run(args) == 0
+    assert replay_cli.run(args) == 0
     out = capsys.readouterr().out
     assert "1 synchronized frames, 1 published, 1 people fitted" in out
     assert "MPJPE" in out
@@ -130,10 +133,10 @@ def test_cli_runs_on_a_bag_file_and_prints_the_summary(capsys, tmp_path):
 
 def test_cli_errors_are_messages_not_tracebacks(capsys, tmp_path):
     parser = argparse.ArgumentParser()
-    replay.add_arguments(parser)
-    assert replay.run(parser.parse_args([str(tmp_path / "missing.mcap"), "--no-progress"])) == 2
+    replay_cli.add_arguments(parser)
+    assert replay_cli.run(parser.parse_args([str(tmp_path / "missing.mcap"), "--no-progress"])) == 2
     assert "does not exist" in capsys.readouterr().err
-    assert replay.run(parser.parse_args([str(node_support.fixture_bag("mcap").path), "--params", "nope",
+    assert replay_cli.run(parser.parse_args([str(node_support.fixture_bag("mcap").path), "--params", "nope",
                                          "--no-progress"])) == 2
     assert "unknown params profile" in capsys.readouterr().err
     # a bag without LiDAR
@@ -149,7 +152,7 @@ def test_cli_errors_are_messages_not_tracebacks(capsys, tmp_path):
         info = camera_model_to_msg(bag_fixture.fixture_camera(), 1.0, "cam", RosbagsFactory(store))
         assert isinstance(info, msg)
         writer.write(conn, 1, store.serialize_cdr(info, "sensor_msgs/msg/CameraInfo"))
-    assert replay.run(parser.parse_args([str(tmp_path / "no_lidar"), "--no-progress"])) == 2
+    assert replay_cli.run(parser.parse_args([str(tmp_path / "no_lidar"), "--no-progress"])) == 2
     assert "points topic" in capsys.readouterr().err
 
 
@@ -168,7 +171,7 @@ def test_topics_found_by_type_when_names_differ(tmp_path):
         for conn, t, raw in reader.messages():
             writer.write(conns[conn.id], t, raw)
     with Reader(tmp_path / "renamed") as reader:
-        topics = replay.resolve_topics(reader, store, node_support.config().node.topics)
+        topics = replay_reader.resolve_topics(reader, store, node_support.node_config().topics)
     assert (topics.image, topics.camera_info, topics.points, topics.keypoints) == (
         "/cam/img", "/cam/info", "/lidar/scan", "/det/kp")
 
@@ -184,7 +187,7 @@ def test_static_transforms_compose_chains():
                                        translation=f.make("geometry_msgs/msg/Vector3", x=xyz[0], y=xyz[1], z=xyz[2]),
                                        rotation=f.make("geometry_msgs/msg/Quaternion", w=1.0)))
 
-    tree = replay.StaticTransforms()
+    tree = TransformGraph()
     transforms = [tf("base", "lidar", (0, 0, 1)), tf("base", "cam", (1, 0, 0))]
     tree.add(f.make("tf2_msgs/msg/TFMessage", transforms=transforms))
     T = tree.lookup("cam", "lidar")  # lidar points -> cam frame
@@ -196,10 +199,11 @@ def test_replay_seeds_fits_from_init_bodies_in_the_bag():
     path = node_support.REPO / "bags" / "walk_sqlite3"
     if not (path / "metadata.yaml").exists():
         pytest.skip("bags/ not generated (smplify3d make-bags)")
-    from smplify3d_ros.config import load_config
+    from smplify3d_ros.runtime.config import load_node_config
 
-    config = load_config(overrides={"node": {"topics": {"init_bodies": "/hmr/bodies"}}})
-    summary = replay.replay_bag(path, progress=False, max_frames=1, config=config, fitter=node_support.fitter())
+    node = load_node_config(overrides={"node": {"topics": {"init_bodies": "/hmr/bodies"}}})
+    summary = replay_bag(path, progress=False, max_frames=1, config=node_support.config(), node_config=node,
+                         fitter=node_support.fitter())
     assert summary.frames_published == 1 and summary.people_fitted == 1
     assert summary.flags.get("external_init") == 1, summary.flags
     assert summary.mpjpe_mm is not None and summary.mpjpe_mm < 200.0

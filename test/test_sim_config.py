@@ -6,7 +6,7 @@ import copy
 
 import pytest
 
-from smplify3d_ros.config import ConfigError, base_values, from_dict
+from smplify3d_ros.settings import ConfigError, base_values, from_dict
 from smplify3d_ros.sim.config import SimConfig, default_sim_config
 
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from smplify3d_ros.sync import ApproximateTimeSync, header_stamp_ns
+from smplify3d_ros.runtime.sync import ApproximateTimeSync, header_stamp_ns
 
 MS = 1_000_000  # ns
 

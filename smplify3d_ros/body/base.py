@@ -8,6 +8,7 @@ y: up, z: forward); `root_orient` rotates those axes into the camera frame.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,6 +16,9 @@ import torch
 
 from smplify3d_ros.body.joints import BENDING_JOINTS, BODY_JOINTS, AnatomicalFrames, anatomical_frames
 from smplify3d_ros.keypoints import PART_DRIVING_JOINTS, PART_NAMES
+from smplify3d_ros.types import BodyParams
+
+PARAM_FIELDS = ("shape", "pose", "root_orient", "transl")  # BodyParams fields, in `forward`'s order
 
 
 @dataclass
@@ -22,6 +26,16 @@ class BodyOutput:
     vertices: torch.Tensor  # (B, V, 3) m, camera frame
     joints: torch.Tensor  # (B, J, 3) positions of `joint_names`, m, camera frame
     keypoints: torch.Tensor  # (B, 17, 3) COCO-17 keypoints, m, camera frame
+
+
+@dataclass
+class PosedBody:
+    """One body's geometry in numpy (float64), camera frame, m."""
+
+    vertices: np.ndarray  # (V, 3)
+    joints: np.ndarray  # (J, 3) positions of the model's `joint_names`
+    keypoints3d: np.ndarray  # (17, 3) COCO-17
+    rotation_center: np.ndarray  # (3,) the point `root_orient` rotates the body about
 
 
 class BodyModel(torch.nn.Module):
@@ -76,6 +90,37 @@ class BodyModel(torch.nn.Module):
         """With `vertex_index` (n,), `vertices` holds only those vertices, (B, n, 3): a model may then
         skip the others (Anny does), which makes optimizer iterations several times cheaper."""
         raise NotImplementedError
+
+    # -- BodyParams in, numpy out -------------------------------------------------------------------
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.anat_frames.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.anat_frames.device
+
+    def params_tensors(self, params: Sequence[BodyParams]) -> list[torch.Tensor]:
+        """(shape, pose, root_orient, transl) of several bodies as (B, ...) tensors in the model's dtype
+        and on its device."""
+        return [torch.as_tensor(np.stack([np.asarray(getattr(p, f), np.float64) for p in params]),
+                                dtype=self.dtype, device=self.device) for f in PARAM_FIELDS]
+
+    def forward_params(self, params: Sequence[BodyParams]) -> BodyOutput:
+        """The batched forward of several bodies' parameters, without gradients."""
+        with torch.no_grad():
+            return self(*self.params_tensors(params))
+
+    def posed(self, params: Sequence[BodyParams]) -> list[PosedBody]:
+        """Geometry of each body, in numpy (float64)."""
+        if not params:
+            return []
+        out = self.forward_params(params)
+        shape, _, _, transl = self.params_tensors(params)
+        with torch.no_grad():
+            centers = self.rotation_center(shape, transl)
+        as_np = [t.cpu().double().numpy() for t in (out.vertices, out.joints, out.keypoints, centers)]
+        return [PosedBody(*(a[i] for a in as_np)) for i in range(len(params))]
 
     # -- anatomical coordinates --------------------------------------------------------------------
     def pose_to_anatomical(self, pose: torch.Tensor) -> torch.Tensor:

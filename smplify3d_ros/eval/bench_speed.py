@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     from smplify3d_ros.body import load_body_model
     from smplify3d_ros.config import load_config
     from smplify3d_ros.eval.synthetic import default_intrinsics, make_person, perturb
-    from smplify3d_ros.fitting.pipeline import Fitter
+    from smplify3d_ros.fitting.fitter import Fitter
 
     torch.set_num_threads(max(1, torch.get_num_threads()))
     base = load_config(args.params)

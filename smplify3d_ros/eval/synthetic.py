@@ -77,19 +77,16 @@ def make_person(
     lateral = rng.uniform(-0.2, 0.2) * distance
     truth = BodyParams(model.name, shape, random_pose(model, rng, pose_spread), upright_root_orient(yaw),
                        np.array([lateral, 0.2, distance]))
-    dt = model.anat_frames.dtype
-    with torch.no_grad():
-        out = model(*(torch.as_tensor(a, dtype=dt)[None] for a in (truth.shape, truth.pose, truth.root_orient,
-                                                                    truth.transl)))
-        uv = project(out.keypoints, torch.as_tensor(K, dtype=dt))[0].double().numpy()
-    verts = out.vertices[0].double().numpy()
+    body = model.posed([truth])[0]
+    uv = project(torch.as_tensor(body.keypoints3d)[None], torch.as_tensor(K, dtype=torch.float64))[0].numpy()
+    verts = body.vertices
     faces = model.faces.cpu().numpy()
     front = front_facing(verts, faces, np.zeros(3), 0.0) & (model.part_of_face.cpu().numpy() >= 0)
     points = sample_surface(verts, faces[front], n_points, point_noise, rng)
     kp = np.concatenate([uv + keypoint_noise_px * rng.standard_normal(uv.shape), np.ones((len(uv), 1))], 1)
     bbox = np.array([*kp[:, :2].min(0), *kp[:, :2].max(0)])
     obs = PersonObservation(person_id, kp, bbox, points.astype(np.float32))
-    return SyntheticPerson(truth, obs, out.joints[0].double().numpy(), verts)
+    return SyntheticPerson(truth, obs, body.joints, verts)
 
 
 def perturb(model: BodyModel, params: BodyParams, rng: np.random.Generator, depth_m: float,

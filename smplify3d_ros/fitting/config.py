@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from smplify3d_ros.config import require
+from smplify3d_ros.settings import require
 
 
 @dataclass

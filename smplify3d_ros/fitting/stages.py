@@ -11,11 +11,11 @@ from dataclasses import dataclass, field
 
 import torch
 
-from smplify3d_ros.body.base import BodyModel, BodyOutput
+from smplify3d_ros.body.base import PARAM_FIELDS, BodyModel, BodyOutput
 from smplify3d_ros.fitting import losses
 from smplify3d_ros.fitting.config import LossWeights, OptimizerProfile
 
-PARAM_NAMES = ("shape", "pose", "root_orient", "transl")
+PARAM_NAMES = PARAM_FIELDS  # FitState fields, in BodyModel.forward order
 
 
 @dataclass

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from smplify3d_ros.config import require
 from smplify3d_ros.keypoints import PART_NAMES
+from smplify3d_ros.settings import require
 
 
 @dataclass
@@ -54,9 +54,6 @@ class ExtractionConfig:
     depth_tolerance_m: float  # depth spread of one body: farther is behind it, nearer may join it
     secondary_link_m: float  # extra clusters join a body across gaps up to this (clustering space)
     body_depth_window_m: float  # a person's points lie within this depth of its median depth
-    # Output.
-    min_points: int  # fewer points than this: the person is flagged `too_few_points`
-    silhouette_fill: float  # fraction of the full-body bbox that the body covers (density, Eq. 9)
 
     def __post_init__(self) -> None:
         require(self.min_depth_m >= 0.0, "min_depth_m must be >= 0")
@@ -98,5 +95,3 @@ class ExtractionConfig:
         require(self.depth_tolerance_m >= 0.0, "depth_tolerance_m must be >= 0")
         require(self.secondary_link_m >= 0.0, "secondary_link_m must be >= 0")
         require(self.body_depth_window_m > 0.0, "body_depth_window_m must be > 0")
-        require(self.min_points >= 0, "min_points must be >= 0")
-        require(0.0 < self.silhouette_fill <= 1.0, "silhouette_fill must be in (0, 1]")

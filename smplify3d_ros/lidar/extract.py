@@ -35,11 +35,12 @@ class PersonPoints:
 
     indices: np.ndarray  # (M,) int64 indices into the scan given to `extract_people`
     points: np.ndarray  # (M, 3) float32 the points, camera frame, m
-    num_points: int  # M
-    density: float  # points per m^2 of the body's projected area (thesis Eq. 9); 0.0 without points
-    too_few_points: bool  # M < config.min_points: fit from the image alone
     bbox: np.ndarray  # (4,) float64 x_min, y_min, x_max, y_max (px, undistorted): the padded keypoint
     #                   bbox clipped to the image, i.e. an estimate of the full-body box; zeros without one
+
+    @property
+    def num_points(self) -> int:
+        return len(self.indices)
 
 
 @dataclass
@@ -47,34 +48,6 @@ class ExtractionResult:
     people: list[PersonPoints]  # one per keypoint set, same order
     labels: np.ndarray  # (N,) int32 per scan point: index of the person it belongs to, or -1
     ground: GroundPlane  # the frame's ground plane (or the fallback height band), camera frame
-
-
-def projected_area(bbox: np.ndarray, depth: float, camera: CameraModel, config: ExtractionConfig) -> float:
-    """Area (m^2) of the body's projection on the vertical plane facing the sensor, from its bbox.
-
-    The bbox (the padded keypoint box, an estimate of the full-body box) is scaled to metres at the
-    person's median depth and multiplied by `silhouette_fill`, the fraction of that box a body covers.
-    A standing adult with arms down has a box of about 1.9 m x 0.9 m; with fill 0.4 that is 0.7 m^2,
-    close to a real silhouette. It is a coarse estimate: spread arms enlarge the box more than the
-    body, and a bbox clipped by the image border shrinks it.
-    """
-    width_m = (bbox[2] - bbox[0]) / camera.K[0, 0] * depth
-    height_m = (bbox[3] - bbox[1]) / camera.K[1, 1] * depth
-    return float(max(width_m, 0.0) * max(height_m, 0.0) * config.silhouette_fill)
-
-
-def _person_points(
-    points: np.ndarray, indices: np.ndarray, bbox: np.ndarray, camera: CameraModel, config: ExtractionConfig
-) -> PersonPoints:
-    mine = points[indices]
-    density = 0.0
-    if len(indices) > 0:
-        area = projected_area(bbox, float(np.median(mine[:, 2])), camera, config)
-        density = len(indices) / area if area > 0.0 else 0.0
-    return PersonPoints(
-        indices=indices, points=mine, num_points=len(indices), density=float(density),
-        too_few_points=len(indices) < config.min_points, bbox=bbox,
-    )
 
 
 def extract_people(
@@ -125,5 +98,5 @@ def extract_people(
     for k, skeleton in enumerate(skeletons):
         indices = candidates[owner == k].astype(np.int64)
         bbox = skeleton.bbox if skeleton is not None else np.zeros(4)
-        people.append(_person_points(points, indices, bbox, camera, config))
+        people.append(PersonPoints(indices=indices, points=points[indices], bbox=bbox))
     return ExtractionResult(people=people, labels=labels, ground=ground)

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from smplify3d_ros.config import require
+from smplify3d_ros.settings import from_dict, require, section
+from smplify3d_ros.sim.people import SHAPE_PRESETS
 
 
 def _check_range(pair: tuple[float, float], name: str, low: float = 0.0) -> None:
@@ -222,8 +223,6 @@ class PeopleConfig:
     pose_variation_scale: float
 
     def __post_init__(self) -> None:
-        from smplify3d_ros.sim.people import SHAPE_PRESETS
-
         require(len(self.preset_weights) > 0, "preset_weights: at least one preset")
         unknown = sorted(set(self.preset_weights) - set(SHAPE_PRESETS))
         require(not unknown, f"preset_weights: unknown presets {unknown}; known: {sorted(SHAPE_PRESETS)}")
@@ -344,6 +343,11 @@ class SimConfig:
 
 def default_sim_config() -> SimConfig:
     """The simulator section from params/base/sim.yaml alone (tests, tools)."""
-    from smplify3d_ros.config import base_values, from_dict
+    from smplify3d_ros.settings import base_values
 
     return from_dict(SimConfig, base_values()["sim"], "sim")
+
+
+def load_sim_config(profile=None, overrides=None) -> SimConfig:
+    """The `sim` section of a profile (see `smplify3d_ros.settings.load_sections`)."""
+    return section(SimConfig, "sim", profile, overrides)

@@ -14,7 +14,7 @@ What an image regressor gets wrong, and how each error is produced from the grou
   body's vertical (`root_yaw_sigma_deg`) and leans towards or away from the camera
   (`root_tilt_sigma_deg`). These give the root-aligned MPJPE.
 
-`hmr_statistics` measures the errors this model produces over random people at 3DPW-like distances;
+`smplify3d_ros.eval.hmr_statistics` measures the errors this model produces over random people at 3DPW-like distances;
 the defaults give about 60 to 80 mm root-aligned and 300 to 600 mm unaligned MPJPE (CLIFF on 3DPW:
 about 69 / 479 mm, METHOD.md).
 """
@@ -26,7 +26,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from smplify3d_ros.body.joints import BODY_JOINTS, JOINT_CHILD, JOINT_INDEX, JOINT_PARENT
-from smplify3d_ros.sim.config import HmrConfig, SimConfig
+from smplify3d_ros.sim.config import HmrConfig
 from smplify3d_ros.types import BodyParams
 
 
@@ -159,62 +159,3 @@ def simulate_hmr(
             )
         )
     return estimates
-
-
-def hmr_statistics(model, cfg: SimConfig, n: int = 100, seed: int = 0) -> dict[str, float]:
-    """Errors of the simulated HMR over `n` random people at `cfg.hmr.calibration_distance_m`.
-
-    Returns means over people: MPJPE root-aligned (hip midpoint), MPJPE unaligned and PA-MPJPE over the
-    model's 19 joints, PVE root-aligned and unaligned (mm), the mean absolute depth error of the pelvis
-    (mm) and the mean 2D error of the projected COCO keypoints (px, `cfg.camera`).
-    """
-    from smplify3d_ros.camera import project_points
-    from smplify3d_ros.eval.metrics import mpjpe, pa_mpjpe, pve, root_aligned
-    from smplify3d_ros.sim.camera import make_camera
-    from smplify3d_ros.sim.world import random_people
-
-    rng = np.random.default_rng(seed)
-    camera = make_camera(cfg.camera)
-    hips = (JOINT_INDEX["left_hip"], JOINT_INDEX["right_hip"])
-    rows = []
-    batch = 8
-    dtype = torch.get_default_dtype()
-    while len(rows) < n:
-        _, people = random_people(rng, cfg, model, batch, cfg.hmr.calibration_distance_m)
-        gt = [(p.params, p.joints.astype(np.float64)) for p in people]
-        est = simulate_hmr(rng, model, gt, cfg.hmr)
-        with torch.no_grad():
-            out = model(
-                *(
-                    torch.as_tensor(np.stack([getattr(e, f) for e in est]), dtype=dtype)
-                    for f in ("shape", "pose", "root_orient", "transl")
-                )
-            )
-        for k, person in enumerate(people):
-            pj, pv = out.joints[k].double().numpy(), out.vertices[k].double().numpy()
-            gj, gv = person.joints.astype(np.float64), person.vertices.astype(np.float64)
-            offset = gj[list(hips)].mean(0) - pj[list(hips)].mean(0)
-            uv_p = project_points(out.keypoints[k].double().numpy(), camera)
-            uv_g = project_points(person.keypoints3d, camera)
-            rows.append(
-                [
-                    mpjpe(root_aligned(pj, gj, hips), gj),
-                    mpjpe(pj, gj),
-                    pa_mpjpe(pj, gj),
-                    pve(pv + offset, gv),
-                    pve(pv, gv),
-                    1000.0 * abs(np.linalg.norm(est[k].transl) - np.linalg.norm(person.params.transl)),
-                    float(np.nanmean(np.linalg.norm(uv_p - uv_g, axis=1))),
-                ]
-            )
-    keys = (
-        "mpjpe_root_aligned_mm",
-        "mpjpe_mm",
-        "pa_mpjpe_mm",
-        "pve_root_aligned_mm",
-        "pve_mm",
-        "pelvis_depth_error_mm",
-        "keypoint_reprojection_px",
-    )
-    values = np.asarray(rows[:n])
-    return {k: float(v) for k, v in zip(keys, values.mean(axis=0))}

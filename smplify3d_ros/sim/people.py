@@ -7,9 +7,12 @@ adds about 0.11 m). Weight changes the volume by about +-10 %, height scales the
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from smplify3d_ros.sim.config import PeopleConfig
+if TYPE_CHECKING:  # the config validates preset names against this module: no import back at run time
+    from smplify3d_ros.sim.config import PeopleConfig
 
 # The phenotypes of each preset, in this order; approximate stature in the comments.
 PRESET_PHENOTYPES: tuple[str, ...] = ("gender", "age", "muscle", "weight", "height", "proportions")

@@ -139,7 +139,7 @@ def static_objects(
 
 
 def observe(
-    rng: np.random.Generator, model, cfg: SimConfig, scene: Scene, sensor: str, stamp: float
+    rng: np.random.Generator, model, cfg: SimConfig, scene: Scene, sensor: str, stamp_ns: int
 ) -> SimFrame:
     """Run the sensors, the detector and the HMR model on an assembled scene."""
     if sensor not in cfg.lidar.sensors:
@@ -161,7 +161,7 @@ def observe(
         pid: est for pid, est in zip([p.person_id for p in people if p.person_id in detected], estimates)
     }
     frame = Frame(
-        stamp=stamp,
+        stamp_ns=stamp_ns,
         camera=camera,
         keypoints=(np.stack([d.keypoints for d in detections]) if detections else np.zeros((0, 17, 3))),
         person_ids=np.array([d.person_id for d in detections], dtype=np.int64),
@@ -208,7 +208,7 @@ def simulate_scene(
     mount, people = random_people(rng, cfg, model, n_people, distance_range, pose_families)
     objects = static_objects(rng, cfg, model, mount, people, walls)
     scene = assemble(rng, model, mount, people, objects, cfg.render)
-    return observe(rng, model, cfg, scene, sensor, stamp=0.0)
+    return observe(rng, model, cfg, scene, sensor, stamp_ns=0)
 
 
 # -- sequences ----------------------------------------------------------------------------------------
@@ -336,4 +336,4 @@ def simulate_sequence(
             placements.append(PersonPlacement(w.person_id, w.preset, w.shape, pose, position, heading))
         people = pose_people(model, placements, mount)
         scene = assemble(np.random.default_rng([seed, 1]), model, mount, people, objects, cfg.render)
-        yield observe(np.random.default_rng([seed, 2, k]), model, cfg, scene, sensor, stamp=t)
+        yield observe(np.random.default_rng([seed, 2, k]), model, cfg, scene, sensor, stamp_ns=round(k * 1e9 / rate_hz))

@@ -19,11 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from smplify3d_ros.camera import transform_points, undistort_pixels
 from smplify3d_ros.config import load_config
+from smplify3d_ros.frame_fitter import extract_frame_people
 from smplify3d_ros.keypoints import HIP_INDICES
 from smplify3d_ros.lidar.config import ExtractionConfig
-from smplify3d_ros.lidar.extract import extract_people
+from smplify3d_ros.sim.config import SimConfig, load_sim_config
+from smplify3d_ros.sim.world import simulate_scene
 
 TARGET_DISTANCE_M = (2.0, 12.0)  # the target set: people at these distances ...
 TARGET_VISIBLE = 0.5  # ... at least this visible
@@ -55,28 +56,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", type=Path, default=None, help="write the results to this JSON file")
     parser.add_argument("--scenes", type=int, default=30, help="number of simulated scenes")
     parser.add_argument("--seed", type=int, default=0, help="seed of the first scene")
-    parser.add_argument("--profile", default=None, help="params profile name or YAML path")
+    parser.add_argument("--params", metavar="PROFILE", default=None, help="params profile name or YAML path")
     parser.add_argument("--sensor", default="vlp16", help="simulated LiDAR (sim.lidar.sensors key)")
 
 
-def undistorted_keypoints(keypoints: np.ndarray, camera) -> np.ndarray:
-    """(P, 17, 3) detected (distorted) keypoints -> undistorted pixels, scores kept."""
-    out = np.array(keypoints, dtype=np.float64, copy=True).reshape(-1, 17, 3)
-    if len(out):
-        out[..., :2] = undistort_pixels(out[..., :2].reshape(-1, 2), camera).reshape(-1, 17, 2)
-    return out
-
-
-def evaluate_scene(seed: int, cfg, config: ExtractionConfig, sensor: str) -> tuple[list[Case], float]:
+def evaluate_scene(seed: int, sim_config: SimConfig, config: ExtractionConfig, sensor: str) -> tuple[list[Case], float]:
     """Cases of one simulated scene and the extraction time (s)."""
-    from smplify3d_ros.sim.world import simulate_scene  # the simulator is optional for the library
-
-    sim = simulate_scene(seed, cfg.sim, sensor=sensor)
+    sim = simulate_scene(seed, sim_config, sensor=sensor)
     frame = sim.frame
-    points_cam = transform_points(np.asarray(frame.points_lidar, dtype=np.float32), frame.T_cam_lidar)
-    keypoints = undistorted_keypoints(frame.keypoints, frame.camera)
     start = time.perf_counter()
-    result = extract_people(points_cam, keypoints, frame.camera, config)
+    _, result = extract_frame_people(frame, config)
     elapsed = time.perf_counter() - start
     truth = np.asarray(sim.point_labels)
     people = {p.person_id: p for p in sim.people}
@@ -137,11 +126,11 @@ def print_report(cases: list[Case], timing_ms: float) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg = load_config(args.profile)
+    lidar, sim = load_config(args.params).lidar, load_sim_config(args.params)
     cases: list[Case] = []
     times = []
     for seed in range(args.seed, args.seed + args.scenes):
-        scene_cases, elapsed = evaluate_scene(seed, cfg, cfg.lidar, args.sensor)
+        scene_cases, elapsed = evaluate_scene(seed, sim, lidar, args.sensor)
         cases += scene_cases
         times.append(elapsed)
     timing_ms = 1000.0 * float(np.median(times)) if times else 0.0
@@ -165,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def main() -> int:  # `python -m smplify3d_ros.lidar.bench`, until the CLI wires it in
+def main() -> int:  # `python -m smplify3d_ros.eval.extraction`
     parser = argparse.ArgumentParser(prog="smplify3d bench-extract", description=__doc__.splitlines()[0])
     add_arguments(parser)
     return run(parser.parse_args())

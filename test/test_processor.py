@@ -1,4 +1,5 @@
-"""The frame pipeline the node and replay share: bad input is a counted drop, never an exception.
+"""The per-frame step the node and replay share (`MessageProcessor`): bad input is a counted drop, never
+an exception.
 
 The fitting itself is replaced by a stub here (its own tests cover it); these tests are about the wiring:
 conversion, people selection, ids, init bodies, transforms, outputs, counters and diagnostics.
@@ -15,13 +16,11 @@ import pytest
 
 from msg_adapters import RosbagsFactory
 from smplify3d_ros.config import load_config
-from smplify3d_ros.frame_pipeline import (
-    DiagnosticsReporter,
-    FrameMessages,
-    FramePipeline,
-    Transforms,
-    transform_fit,
-)
+from smplify3d_ros.runtime.config import load_node_config
+from smplify3d_ros.runtime.messages import FrameMessages, to_frame
+from smplify3d_ros.runtime.processor import MessageProcessor
+from smplify3d_ros.runtime.stats import DiagnosticsReporter
+from smplify3d_ros.runtime.transforms import Transforms, transform_fit
 from smplify3d_ros.types import BodyFit, BodyParams, FitQuality
 
 FACTORY = RosbagsFactory()
@@ -41,7 +40,7 @@ class StubFitter:
     def __init__(self) -> None:
         self.calls: list[list] = []
 
-    def fit(self, people, K, origin):
+    def fit(self, people, K, origin, options=None):
         self.calls.append(people)
         fits = []
         for p in people:
@@ -64,13 +63,14 @@ def frame():
 def _frames():
     if not hasattr(_frames, "cache"):
         _frames.cache = bag_fixture.make_frames(node_support.fitter().model,
-                                                node_support.config().node.extrinsic.T_cam_lidar(), 2, 2)
+                                                node_support.node_config().extrinsic.T_cam_lidar(), 2, 2)
     return _frames.cache
 
 
-def pipeline(overrides=None) -> FramePipeline:
+def pipeline(overrides=None) -> MessageProcessor:
     config = load_config(overrides=overrides) if overrides else node_support.config()
-    return FramePipeline(config, FACTORY, fitter=StubFitter())
+    node = load_node_config(overrides=overrides) if overrides else node_support.node_config()
+    return MessageProcessor(config, node, FACTORY, fitter=StubFitter())
 
 
 def messages(msgs: dict) -> FrameMessages:
@@ -105,7 +105,7 @@ def test_bad_input_is_a_counted_drop(kind, frame):
     stamp = T0 - 0.3 if kind == "time_backwards" else T0 + 0.1
     result = p.process(messages(node_support.bad_frame(kind, FACTORY, CAMERA, frame, stamp)))
     outcome, key = node_support.BAD_KINDS[kind]
-    values = p.diagnostic_values()
+    values = p.stats.values()
     if outcome == "drop":
         assert result.drop == key, result.message
         assert result.message
@@ -132,7 +132,7 @@ def test_duplicate_stamp_and_clock_reset(frame):
 
 
 def test_people_selection_ids_and_limits(frame):
-    p = pipeline({"node": {"max_people": 1}})
+    p = pipeline({"people": {"max_people": 1}})
     kp = np.concatenate([frame.keypoints, frame.keypoints[:1], frame.keypoints[:1]])
     kp[2, :, 2] = 0.0  # no confident keypoint
     kp[3, 12:, 2] = 0.0  # only 12 confident keypoints: still enough
@@ -151,11 +151,11 @@ def test_people_selection_ids_and_limits(frame):
 
 def test_anonymous_people_get_free_ids_left_to_right(frame):
     p = pipeline()
-    f = p.to_frame(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    f = to_frame(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)), "coco17", p.transforms, "camera")
     import dataclasses
 
     f = dataclasses.replace(f, person_ids=np.array([-1, 0]))
-    selected = p.select_people(f)
+    selected, _ = p.frames.select_people(f)
     assert selected.person_ids.tolist() == [1, 0]
 
 
@@ -181,11 +181,10 @@ def test_init_bodies_matched_by_stamp_and_id(frame):
 
 def test_output_frame_lidar_moves_geometry(frame):
     p = pipeline({"node": {"output_frame": bag_fixture.LIDAR_FRAME}})
-    p._rotation_center = lambda params: params.transl  # the stub model rotates about its translation
     result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
     assert result.ok and result.frame_id == bag_fixture.LIDAR_FRAME
     cam = pipeline().process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
-    T = np.linalg.inv(node_support.config().node.extrinsic.T_cam_lidar())
+    T = np.linalg.inv(node_support.node_config().extrinsic.T_cam_lidar())
     expected = cam.fits[0].vertices @ T[:3, :3].T + T[:3, 3]
     np.testing.assert_allclose(result.fits[0].vertices, expected, atol=1e-5)
     assert result.outputs["joints"].header.frame_id == bag_fixture.LIDAR_FRAME
@@ -206,7 +205,7 @@ def test_transform_fit_is_rigid():
     params = BodyParams("stub", np.zeros(1), np.zeros((1, 3)), np.array([0.1, 0.2, 0.3]), np.array([0.0, 1.0, 4.0]))
     fit = BodyFit(0, params, ["a"], np.random.default_rng(0).normal(size=(5, 3)).astype(np.float32),
                   np.zeros((17, 3), np.float32), np.zeros((1, 3), np.float32), FitQuality(0, 0, 0, [], True, 0))
-    moved = transform_fit(fit, T, lambda p: p.transl)
+    moved = transform_fit(fit, T)
     np.testing.assert_allclose(moved.vertices, fit.vertices @ T[:3, :3].T + T[:3, 3], atol=1e-5)
     np.testing.assert_allclose(moved.params.transl, T[:3, :3] @ params.transl + T[:3, 3], atol=1e-9)
     R = Rotation.from_rotvec(moved.params.root_orient).as_matrix()
@@ -214,7 +213,7 @@ def test_transform_fit_is_rigid():
 
 
 def test_transforms_prefers_lookup_then_parameters():
-    ext = node_support.config().node.extrinsic
+    ext = node_support.node_config().extrinsic
     T = np.eye(4)
     T[0, 3] = 5.0
     found = Transforms(ext, lambda target, source, stamp: T if (target, source) == ("cam", "lidar") else None)
@@ -225,16 +224,16 @@ def test_transforms_prefers_lookup_then_parameters():
 
 def test_diagnostics_levels(frame):
     p = pipeline()
-    reporter = DiagnosticsReporter()
+    reporter = DiagnosticsReporter("test")
     p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
-    ok = reporter.message(T0, p.diagnostic_values(), FACTORY).status[0]
+    ok = reporter.message(T0, p.stats.values(), FACTORY).status[0]
     assert ok.level == 0
     p.process(messages(node_support.bad_frame("empty_cloud", FACTORY, CAMERA, frame, T0 + 0.1)))
-    warn = reporter.message(T0, p.diagnostic_values(), FACTORY).status[0]
+    warn = reporter.message(T0, p.stats.values(), FACTORY).status[0]
     assert warn.level == 1 and "1 frame(s) dropped" in warn.message
     values = {kv.key: kv.value for kv in warn.values}
     assert values["drop.empty_cloud"] == "1" and "latency_ms.fit.mean" in values
-    assert reporter.message(T0, p.diagnostic_values(), FACTORY).status[0].level == 0, "per period"
+    assert reporter.message(T0, p.stats.values(), FACTORY).status[0].level == 0, "per period"
 
 
 def test_fit_exception_is_a_counted_error(frame):
@@ -246,7 +245,7 @@ def test_fit_exception_is_a_counted_error(frame):
     p.fitter.fit = boom
     result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
     assert result.drop == "fit_error" and "kaboom" in result.message
-    assert DiagnosticsReporter().message(T0, p.diagnostic_values(), FACTORY).status[0].level == 2
+    assert DiagnosticsReporter("test").message(T0, p.stats.values(), FACTORY).status[0].level == 2
 
 
 def test_unexpected_exception_is_an_internal_error_drop(frame):
@@ -255,18 +254,18 @@ def test_unexpected_exception_is_an_internal_error_drop(frame):
     def broken(*args):
         raise KeyError("surprise")
 
-    p.outputs = broken
+    p.outputs.build = broken
     result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
     assert result.drop == "internal_error" and "surprise" in result.message and result.outputs == {}
-    status = DiagnosticsReporter().message(T0, p.diagnostic_values(), FACTORY).status[0]
+    status = DiagnosticsReporter("test").message(T0, p.stats.values(), FACTORY).status[0]
     assert status.level == 2
 
 
 def test_rate_limited_logging_works_with_the_rclpy_logger(frame):
     """rclpy's logger refuses two severities from one call site: each severity logs from its own line."""
     rclpy_logging = pytest.importorskip("rclpy.logging")
-    p = FramePipeline(node_support.config(), FACTORY, fitter=StubFitter(),
-                      log=rclpy_logging.get_logger("smplify3d_pipeline_test"))
+    p = MessageProcessor(node_support.config(), node_support.node_config(), FACTORY, fitter=StubFitter(),
+                         log=rclpy_logging.get_logger("smplify3d_pipeline_test"))
     p.process(messages(node_support.bad_frame("out_of_image", FACTORY, CAMERA, frame, T0)))  # info
     p.process(messages(node_support.bad_frame("empty_cloud", FACTORY, CAMERA, frame, T0 + 0.1)))  # warning
     p.fitter.fit = lambda *a: (_ for _ in ()).throw(RuntimeError("x"))

@@ -1,7 +1,10 @@
-"""Parameters of the ROS node and of the frame pipeline it shares with replay (values in params/base/node.yaml).
+"""Settings of the drivers (the ROS node and the bag replay): the `node` section, params/base/node.yaml.
 
-The dataclasses declare types and valid ranges only; every value, with its meaning, lives in the YAML file.
-The node also exposes each value as a ROS parameter named by its key path in the section (`sync.slop_s`).
+Topics, synchronization, the LiDAR-camera extrinsic, the output frame and what is published: what turns
+messages into frames and fits into messages. The method's own settings are the core configuration
+(`smplify3d_ros.config`). The dataclasses declare types and valid ranges only; every value, with its
+meaning, lives in the YAML file. The node also exposes each value as a ROS parameter named by its key
+path in the section (`sync.slop_s`).
 """
 
 from __future__ import annotations
@@ -12,7 +15,8 @@ from typing import Literal
 
 import numpy as np
 
-from smplify3d_ros.config import require
+from smplify3d_ros.geometry import invert, quaternion_to_matrix, rpy_to_matrix, transform
+from smplify3d_ros.settings import require, section
 
 
 def _is_topic(name: str) -> bool:
@@ -81,20 +85,12 @@ class ExtrinsicConfig:
 
     def T_lidar_cam(self) -> np.ndarray:
         """(4, 4) camera-frame points -> LiDAR frame (the TF transform parent lidar, child camera)."""
-        from scipy.spatial.transform import Rotation
-
-        if self.rotation == "rpy":
-            R = Rotation.from_euler("xyz", self.rpy).as_matrix()
-        else:
-            R = Rotation.from_quat(self.quaternion).as_matrix()  # scipy order: x, y, z, w
-        T = np.eye(4)
-        T[:3, :3] = R
-        T[:3, 3] = self.xyz
-        return T
+        R = rpy_to_matrix(self.rpy) if self.rotation == "rpy" else quaternion_to_matrix(self.quaternion)
+        return transform(R, self.xyz)
 
     def T_cam_lidar(self) -> np.ndarray:
         """(4, 4) LiDAR-frame points -> camera frame (what `Frame.T_cam_lidar` holds)."""
-        return np.linalg.inv(self.T_lidar_cam())
+        return invert(self.T_lidar_cam())
 
 
 @dataclass
@@ -121,9 +117,6 @@ class NodeConfig:
     sync: SyncConfig
     extrinsic: ExtrinsicConfig
     output_frame: str  # frame of published geometry; "" = the camera optical frame
-    max_people: int  # people fitted per frame
-    min_person_keypoints: int  # people with fewer usable keypoints are not fitted
-    keypoint_margin: float  # keypoints this far outside the image (fraction of its size) are missing
     worker_queue_size: int  # frames waiting for the fitting worker (latest-frame policy)
     publish: PublishConfig
     diagnostics_period_s: float  # /diagnostics period, s
@@ -134,8 +127,10 @@ class NodeConfig:
         require(self.keypoint_format in KEYPOINT_FORMATS,
                 f"keypoint_format {self.keypoint_format!r} is not one of {sorted(KEYPOINT_FORMATS)}")
         require(_is_topic(self.output_frame), "output_frame must not contain spaces")
-        require(1 <= self.max_people <= 100, "max_people must be in [1, 100]")
-        require(1 <= self.min_person_keypoints <= 17, "min_person_keypoints must be in [1, 17]")
-        require(0.0 <= self.keypoint_margin <= 10.0, "keypoint_margin must be in [0, 10]")
         require(1 <= self.worker_queue_size <= 100, "worker_queue_size must be in [1, 100]")
         require(0.05 <= self.diagnostics_period_s <= 3600.0, "diagnostics_period_s must be in [0.05, 3600]")
+
+
+def load_node_config(profile=None, overrides=None) -> NodeConfig:
+    """The `node` section of a profile (see `smplify3d_ros.settings.load_sections`)."""
+    return section(NodeConfig, "node", profile, overrides)

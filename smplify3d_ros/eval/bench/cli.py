@@ -1,0 +1,187 @@
+"""`smplify3d bench`: the command line (light to import: `--help` loads no torch)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from smplify3d_ros.eval.bench.methods import MAIN_METHODS, METHODS, Setup, profile_for, resolve_sensor
+from smplify3d_ros.eval.bench.studies import ABLATION_METHODS, STUDIES, BenchRun, Report, run_main, run_study
+from smplify3d_ros.settings import to_dict
+
+DEFAULT_OUT = Path("out/bench")  # plots go here unless --plot-dir says otherwise (relative to the working directory)
+
+
+def _pair(text: str, cast: Callable[[str], Any]) -> tuple[Any, Any]:
+    parts = text.replace(",", "-").split("-") if cast is int else text.split(",")
+    if len(parts) == 1:
+        parts = parts * 2
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"expected MIN{',' if cast is float else '-'}MAX, got {text!r}")
+    low, high = cast(parts[0]), cast(parts[1])
+    if low > high:
+        raise argparse.ArgumentTypeError(f"min > max in {text!r}")
+    return low, high
+
+
+def _override(text: str) -> tuple[str, Any]:
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE (dotted key), got {text!r}")
+    return key, yaml.safe_load(value)
+
+
+def overrides_from(pairs: Iterable[tuple[str, Any]]) -> dict[str, Any]:
+    """[("fitting.profiles.robot.iterations", [1, 2, 1])] -> nested mapping for `load_config`."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        node = out
+        parts = key.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = value
+    return out
+
+
+def merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--sensor",
+        default="vlp16",
+        help="simulated LiDAR: vlp16 (default), ouster32, ouster64, ouster128 (or os1_64, ...)",
+    )
+    parser.add_argument("--scenes", type=int, default=40, help="number of seeded scenes (default 40)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the first scene")
+    parser.add_argument(
+        "--people",
+        type=lambda s: _pair(s, int),
+        default=(1, 3),
+        metavar="MIN-MAX",
+        help="people per scene (default 1-3)",
+    )
+    parser.add_argument(
+        "--distance",
+        type=lambda s: _pair(s, float),
+        default=None,
+        metavar="MIN,MAX",
+        help="people's distance from the camera, m (default 3,8; density study 2,20)",
+    )
+    parser.add_argument(
+        "--study", choices=STUDIES, default=None, help="run a study instead of the main table"
+    )
+    parser.add_argument("--json", type=Path, default=None, help="write the rows (and per-person cases) here")
+    parser.add_argument("--plot-dir", type=Path, default=DEFAULT_OUT,
+                        help=f"where plots go (default: {DEFAULT_OUT} under the working directory)")
+    parser.add_argument("--no-plot", action="store_true", help="write no plot")
+    parser.add_argument(
+        "--params",
+        metavar="PROFILE",
+        default=None,
+        help="params profile name or YAML path (default: the sensor's own, e.g. ouster64, if params/ has "
+        "it, else jackal_vlp16)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        type=_override,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override one config value (dotted key, YAML value), e.g. "
+        "fitting.profiles.robot.iterations=[4,10,4]; repeatable",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        sensor = resolve_sensor(args.sensor)
+    except ValueError as e:
+        print(f"smplify3d bench: {e}", file=sys.stderr)
+        return 2
+    bench = BenchRun(sensor, range(args.seed, args.seed + args.scenes), args.people, args.distance,
+                     None if args.no_plot else args.plot_dir, progress=not args.no_progress)
+    base = overrides_from(args.overrides)
+    schemes = {METHODS[m].scheme for m in (*MAIN_METHODS, *ABLATION_METHODS)}
+    cache: dict[str, Setup] = {}
+    profiles: dict[str, str | None] = {}
+
+    def setup_for(sensor: str, extra: dict[str, Any] | None = None) -> Setup:
+        overrides = merge(base, extra or {})
+        profile = profiles[sensor] = profile_for(sensor, args.params)
+        key = json.dumps([profile, overrides], sort_keys=True)
+        if key not in cache:
+            cache.clear()  # one setup alive at a time (fitters hold tensors)
+            cache[key] = Setup.create(profile, overrides or None, schemes)
+        return cache[key]
+
+    start = time.perf_counter()
+    report = run_study(args.study, bench, setup_for) if args.study else run_main(bench, setup_for)
+    elapsed = time.perf_counter() - start
+    print(report.table)
+    for line in report.notes:
+        print(line)
+    for path in report.plots:
+        print(f"plot: {path}")
+    print(f"{len(report.cases)} person-method cases in {elapsed:.0f} s")
+    if args.json is not None:
+        meta = {
+            "study": args.study, "sensor": sensor, "scenes": args.scenes, "seed": args.seed,
+            "people": list(args.people), "distance_m": list(report.distance), "profiles": profiles,
+            "overrides": base, "fitting": to_dict(next(iter(cache.values())).config.fitting) if cache else None,
+            "code": code_version(), "seconds": round(elapsed, 1),
+        }
+        write_json(args.json, report, meta)
+    return 0
+
+
+def write_json(path: Path, report: Report, meta: dict[str, Any]) -> None:
+    doc = {"rows": report.rows, **report.extra, "meta": meta,
+           "cases": [dataclasses.asdict(c) for c in report.cases]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc, indent=1))
+    print(f"wrote {path}")
+
+
+def code_version() -> str:
+    """The commit of the working tree; with uncommitted changes to the code or parameters, "-dirty-" and
+    a hash of that diff (two runs with equal strings ran the same code)."""
+    import hashlib
+    import subprocess
+
+    root = Path(__file__).resolve().parents[3]
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, check=True
+        ).stdout.strip()
+        code = ["smplify3d_ros", "msg_adapters", "params"]  # not docs/: the bench's own outputs live there
+        diff = subprocess.run(
+            ["git", "diff", "HEAD", "--", *code], cwd=root, capture_output=True, check=True
+        ).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return commit + (f"-dirty-{hashlib.sha1(diff).hexdigest()[:8]}" if diff else "")
+
+
+def main() -> int:  # `python -m smplify3d_ros.eval.bench.cli`
+    parser = argparse.ArgumentParser(prog="smplify3d bench", description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    return run(parser.parse_args())
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

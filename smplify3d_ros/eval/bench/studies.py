@@ -1,0 +1,188 @@
+"""The main table and the thesis's studies (sensors, noise sweeps, calibration, density, ablation)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from smplify3d_ros.eval.bench.methods import MAIN_METHODS, SENSOR_LABELS, Case, Setup, run_scenes
+from smplify3d_ros.eval.bench.plots import plot_density, plot_methods, plot_sensors, plot_sweep
+from smplify3d_ros.eval.bench.report import markdown_table, summarize, target_lines
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A study that sweeps one simulated-sensor parameter."""
+
+    key: str  # field of the sensor's LidarSensorConfig
+    values: tuple[float, ...]
+    to_config: Callable[[float], float]  # swept value -> config value
+    xlabel: str
+
+
+SWEEPS = {
+    "range_noise": Sweep(
+        "range_noise_m", (0.0, 10.0, 20.0, 30.0, 40.0, 50.0), lambda mm: mm / 1000.0, "range noise σ (mm)"
+    ),
+    "angular_noise": Sweep(
+        "angular_noise_deg", (0.0, 0.02, 0.04, 0.06, 0.08, 0.1), lambda d: d, "angular noise σ (deg)"
+    ),
+    "dropout": Sweep("dropout", (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6), lambda p: p, "drop-out fraction"),
+}
+CALIBRATION_ERRORS = (0.0, 0.5, 1.0, 2.0, 3.0)  # deg of rotation and cm of translation, see `miscalibrated`
+STUDIES = ("sensors", *SWEEPS, "calibration", "density", "ablation")
+STUDY_METHODS = ("hmr_init_icp", "smplify3d_three_stage")
+CALIBRATION_METHODS = ("hmr_init_icp", "smplify3d_single_stage", "smplify3d_three_stage")
+PARTLY_HIDDEN = 0.9  # ablation subset: people this much or less visible (others, objects, image border)
+ABLATION_METHODS = (
+    "smplify3d_three_stage",
+    "ablation_no_chamfer",
+    "ablation_no_occlusion_prior",
+    "ablation_no_visibility",
+)
+
+
+@dataclass
+class BenchRun:
+    """What one bench run covers (the command line's choices)."""
+
+    sensor: str  # key of `sim.lidar.sensors`
+    seeds: Sequence[int]  # one scene per seed
+    people: tuple[int, int]  # people per scene, min and max
+    distance: tuple[float, float] | None  # people's distance from the camera, m (None: the study's default)
+    plot_dir: Path | None  # where plots go (None: no plot)
+    progress: bool = True
+
+    def distance_or(self, default: tuple[float, float]) -> tuple[float, float]:
+        return self.distance if self.distance is not None else default
+
+
+MAIN_DISTANCE_M = (3.0, 8.0)  # default distances of the main table and the studies ...
+DENSITY_DISTANCE_M = (2.0, 20.0)  # ... but the density study's, which sweeps distance itself
+
+
+@dataclass
+class Report:
+    rows: list[dict[str, Any]]
+    cases: list[Case]
+    table: str
+    plots: list[Path]
+    notes: list[str] = field(default_factory=list)
+    extra: dict[str, Any] = field(default_factory=dict)  # more JSON keys
+    distance: tuple[float, float] = MAIN_DISTANCE_M  # the distances the run used
+
+
+def _plot_path(run: BenchRun, name: str) -> Path | None:
+    return None if run.plot_dir is None else run.plot_dir / name
+
+
+def run_main(run: BenchRun, setup_for: Callable[..., Setup]) -> Report:
+    """Every main method on the run's scenes, overall and for the people with LiDAR points."""
+    sensor, distance = run.sensor, run.distance_or(MAIN_DISTANCE_M)
+    setup = setup_for(sensor)
+    cases = run_scenes(setup, sensor, run.seeds, MAIN_METHODS, run.people, distance, progress=run.progress)
+    rows = [summarize(cases, m, sensor) for m in MAIN_METHODS]
+    min_points = setup.config.fitting.min_points
+    with_lidar = [c for c in cases if c.num_points >= min_points]
+    subset = [summarize(with_lidar, m, sensor, subset=f"num_points >= {min_points}") for m in MAIN_METHODS]
+    plots = []
+    path = _plot_path(run, f"bench_{sensor}.png")
+    if path is not None:
+        plots.append(plot_methods(rows, path, f"{SENSOR_LABELS[sensor]}: {rows[0]['n']} people, "
+                                  f"{len(run.seeds)} scenes, {distance[0]:g}-{distance[1]:g} m"))
+    table = markdown_table(rows)
+    notes = target_lines(rows)
+    table += f"\n\nPeople with at least {min_points} LiDAR points (fitting.min_points; the others are fitted "
+    table += "from the image alone):\n\n" + markdown_table(subset)
+    notes += [f"(people with LiDAR) {line}" for line in target_lines(subset)]
+    return Report(rows, cases, table, plots, notes, {"rows_with_lidar": subset}, distance)
+
+
+class _Study:
+    """The cases and rows of one study, gathered part by part."""
+
+    def __init__(self, name: str, run: BenchRun, distance: tuple[float, float]) -> None:
+        self.name, self.run, self.distance = name, run, distance
+        self.cases: list[Case] = []
+        self.rows: list[dict[str, Any]] = []
+
+    def add(self, setup: Setup, sensor: str, methods: Sequence[str], value: float | None = None,
+            calibration_error: float = 0.0) -> None:
+        """Run `methods` on the run's seeds; one summary row per method (with the swept value, if any)."""
+        part = run_scenes(setup, sensor, self.run.seeds, methods, self.run.people, self.distance, value=value,
+                          progress=self.run.progress, desc="" if value is None else f"{self.name}={value:g}",
+                          calibration_error=calibration_error)
+        self.cases += part
+        extra = {} if value is None else {"study": self.name, "value": value}
+        self.rows += [summarize(part, m, sensor, **extra) for m in methods]
+
+    def report(self, plot: Path | None, columns: tuple[str, ...] = ()) -> Report:
+        for r in self.rows:
+            r.setdefault("study", self.name)
+        return Report(self.rows, self.cases, markdown_table(self.rows, columns), [plot] if plot else [],
+                      distance=self.distance)
+
+
+def _sensors(study: _Study, setup_for: Callable[..., Setup]) -> Report:
+    for sensor in SENSOR_LABELS:
+        study.add(setup_for(sensor), sensor, STUDY_METHODS)
+    d, path = study.distance, _plot_path(study.run, "study_sensors.png")
+    title = f"MPJPE per sensor ({len(study.run.seeds)} scenes, {d[0]:g}-{d[1]:g} m)"
+    return study.report(path and plot_sensors(study.rows, path, title))
+
+
+def _sweep(study: _Study, setup_for: Callable[..., Setup]) -> Report:
+    sweep, sensor = SWEEPS[study.name], study.run.sensor
+    for value in sweep.values:
+        overrides = {"sim": {"lidar": {"sensors": {sensor: {sweep.key: sweep.to_config(value)}}}}}
+        study.add(setup_for(sensor, overrides), sensor, STUDY_METHODS, value)
+    path = _plot_path(study.run, f"study_{study.name}_{sensor}.png")
+    title = f"{SENSOR_LABELS[sensor]}: {study.name.replace('_', ' ')} ({len(study.run.seeds)} scenes)"
+    return study.report(path and plot_sweep(study.rows, path, sweep.xlabel, title), ("value",))
+
+
+def _calibration(study: _Study, setup_for: Callable[..., Setup]) -> Report:
+    sensor = study.run.sensor
+    setup = setup_for(sensor)
+    for value in CALIBRATION_ERRORS:
+        study.add(setup, sensor, CALIBRATION_METHODS, value, calibration_error=value)
+    path = _plot_path(study.run, f"study_calibration_{sensor}.png")
+    title = f"{SENSOR_LABELS[sensor]}: calibration error ({len(study.run.seeds)} scenes)"
+    return study.report(path and plot_sweep(study.rows, path, "LiDAR-camera calibration error (deg and cm)",
+                                            title), ("value",))
+
+
+def _density(study: _Study, setup_for: Callable[..., Setup]) -> Report:
+    for sensor in SENSOR_LABELS:
+        study.add(setup_for(sensor), sensor, STUDY_METHODS)
+    d, path = study.distance, _plot_path(study.run, "study_density.png")
+    title = f"Error against LiDAR density and distance ({len(study.run.seeds)} scenes per sensor, {d[0]:g}-{d[1]:g} m)"
+    return study.report(path and plot_density(study.cases, path, title))
+
+
+def _ablation(study: _Study, setup_for: Callable[..., Setup]) -> Report:
+    sensor = study.run.sensor
+    study.cases = run_scenes(setup_for(sensor), sensor, study.run.seeds, ABLATION_METHODS, study.run.people,
+                             study.distance, progress=study.run.progress)
+    hidden = [c for c in study.cases if c.visible_fraction < PARTLY_HIDDEN]
+    study.rows = [summarize(study.cases, m, sensor, subset="all") for m in ABLATION_METHODS]
+    study.rows += [summarize(hidden, m, sensor, subset=f"visible < {PARTLY_HIDDEN:g}") for m in ABLATION_METHODS]
+    path = _plot_path(study.run, f"study_ablation_{sensor}.png")
+    title = f"{SENSOR_LABELS[sensor]}: ablation ({study.rows[0]['n']} people)"
+    return study.report(path and plot_methods(study.rows[: len(ABLATION_METHODS)], path, title), ("subset",))
+
+
+_STUDY_RUNNERS: dict[str, Callable[[_Study, Callable[..., Setup]], Report]] = {
+    "sensors": _sensors, **{name: _sweep for name in SWEEPS}, "calibration": _calibration, "density": _density,
+    "ablation": _ablation,
+}
+
+
+def run_study(name: str, run: BenchRun, setup_for: Callable[..., Setup]) -> Report:
+    """One of the thesis's studies (`STUDIES`) on the run's scenes."""
+    if name not in _STUDY_RUNNERS:
+        raise ValueError(f"unknown study {name!r}; known: {', '.join(STUDIES)}")
+    default = DENSITY_DISTANCE_M if name == "density" else MAIN_DISTANCE_M
+    return _STUDY_RUNNERS[name](_Study(name, run, run.distance_or(default)), setup_for)

@@ -1,0 +1,346 @@
+"""The method on one frame's people: initial estimate -> visibility -> ICP -> stages -> BodyFit.
+
+`Fitter.fit(people, K)` runs the thesis's steps in order, batched over the people of a frame; each step
+is a method over one `Batch`, the state the steps share. The people come as `PersonObservation`s in the
+camera frame (keypoints undistorted, LiDAR points cut out): `frame_fitter.FrameFitter` makes them from a
+whole `Frame`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from smplify3d_ros.body import BodyModel, load_body_model
+from smplify3d_ros.body.base import PARAM_FIELDS
+from smplify3d_ros.fitting import init as initializer
+from smplify3d_ros.fitting.config import FittingConfig
+from smplify3d_ros.fitting.icp import align_mesh_to_points
+from smplify3d_ros.fitting.losses import nearest_sq_distances, project
+from smplify3d_ros.fitting.options import FitOptions
+from smplify3d_ros.fitting.stages import FitProblem, FitState, StageSpec, optimize, run_stage
+from smplify3d_ros.fitting.visibility import occluded_parts, visible_vertices
+from smplify3d_ros.geometry import move_body, transform
+from smplify3d_ros.keypoints import PART_NAMES
+from smplify3d_ros.types import (
+    FLAG_DIVERGED,
+    FLAG_EXTERNAL_INIT,
+    FLAG_FEW_KEYPOINTS,
+    FLAG_ICP_NOT_CONVERGED,
+    FLAG_IMAGE_ONLY,
+    BodyFit,
+    BodyParams,
+    FitQuality,
+    PersonObservation,
+)
+
+log = logging.getLogger(__name__)
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        log.warning("device 'cuda' requested but unavailable; using the CPU")
+        return torch.device("cpu")
+    return torch.device(name)
+
+
+@dataclass
+class Batch:
+    """What the steps of one `Fitter.fit` call share; row i of every array is person i."""
+
+    people: list[PersonObservation]
+    K: torch.Tensor  # (3, 3) intrinsics of the undistorted image
+    lidar_origin: np.ndarray  # (3,) the LiDAR's position in the camera frame (back-face culling)
+    options: FitOptions
+    rng: np.random.Generator  # chamfer subsampling
+    keypoints: torch.Tensor  # (B, 17, 2) px
+    confidence: torch.Tensor  # (B, 17)
+    use_lidar: np.ndarray  # (B,) bool: enough points for L_3D
+    occluded_image: list[np.ndarray]  # per person, (parts,) bool: parts the image term treats as occluded
+    occluded_lidar: list[np.ndarray]  # per person, (parts,) bool: parts left out of L_3D
+    occluded_joints: np.ndarray  # (B, J) bool: joints driving image-occluded parts (L_θocc)
+    flags: list[set[str]]
+    builtin: np.ndarray  # (B,) bool: started from the built-in initializer
+    state: FitState | None = None
+    problem: FitProblem | None = None  # the stages' observations (also what the fit quality is measured on)
+    icp_ok: np.ndarray | None = None  # (B,) bool
+    final_loss: torch.Tensor | None = None  # (B,)
+
+    @property
+    def size(self) -> int:
+        return len(self.people)
+
+
+def _pad_rows(rows: list[np.ndarray], width: int, fill) -> tuple[np.ndarray, np.ndarray]:
+    n = max([len(r) for r in rows] + [0])
+    shape = (len(rows), n) + ((width,) if width else ())
+    out = np.full(shape, fill, dtype=np.float64 if width else np.int64)
+    mask = np.zeros((len(rows), n), dtype=bool)
+    for i, r in enumerate(rows):
+        out[i, : len(r)] = r
+        mask[i, : len(r)] = True
+    return out, mask
+
+
+def _subsample(n: int, limit: int, rng: np.random.Generator) -> np.ndarray:
+    if limit <= 0 or n <= limit:
+        return np.arange(n)
+    return np.sort(rng.choice(n, size=limit, replace=False))
+
+
+class Fitter:
+    """Holds the body model and the configuration; `fit` runs the method on one frame's people."""
+
+    def __init__(self, config: FittingConfig, model: BodyModel | None = None) -> None:
+        self.config = config
+        if config.num_threads > 0:
+            # per-iteration tensors are small: intra-op threads only add synchronization, and on a busy robot
+            # CPU (drivers, planners) oversubscribed OpenMP threads made fits 10x slower in our measurements
+            torch.set_num_threads(config.num_threads)
+        self.device = resolve_device(config.device)
+        self.model = model if model is not None else load_body_model(config.body.model, config.body, str(self.device))
+        self.dtype = self.model.dtype
+        self.faces_np = self.model.faces.cpu().numpy()
+        # the built-in initializer starts from the anatomical neutral (standing, arms hanging, limbs
+        # straight), not from the model's rest pose (Anny's is an A-pose with bent elbows)
+        zeros = torch.zeros(1, len(self.model.joint_names), 3, dtype=self.dtype)
+        self._neutral_pose = self.model.anatomical_to_pose(zeros, from_neutral=True)[0].cpu().double().numpy()
+        self.part_of_face_np = self.model.part_of_face.cpu().numpy()
+
+    def fit(
+        self,
+        people: list[PersonObservation],
+        K: np.ndarray,
+        lidar_origin: np.ndarray | None = None,
+        options: FitOptions | None = None,
+    ) -> list[BodyFit]:
+        """Fit every person of one frame (camera frame; `K` of the undistorted image)."""
+        if not people:
+            return []
+        batch = self._start(people, K, lidar_origin, options or FitOptions())
+        self._initialize(batch)
+        self._refine_builtin(batch)
+        self._align_to_points(batch)
+        self._optimize(batch)
+        return self._results(batch)
+
+    # -- the steps ---------------------------------------------------------------------------------------
+    def _start(self, people: list[PersonObservation], K: np.ndarray, lidar_origin: np.ndarray | None,
+               options: FitOptions) -> Batch:
+        """Which terms each person gets: LiDAR or image only, and the visibility of its parts."""
+        cfg = self.config
+        torch.manual_seed(cfg.seed)
+        vis = cfg.visibility
+        occluded_image = [occluded_parts(p.keypoints[:, 2], vis.keypoint_conf_image) for p in people]
+        occluded_joints = np.zeros((len(people), len(self.model.joint_names)), dtype=bool)
+        if options.use_occlusion_prior:
+            for i, occluded in enumerate(occluded_image):
+                for part in np.flatnonzero(occluded):
+                    occluded_joints[i, self.model.part_joint_index[part]] = True
+        use_lidar = np.array([len(p.points) >= cfg.min_points for p in people])
+        flags: list[set[str]] = [set() for _ in people]
+        for i, p in enumerate(people):
+            if not use_lidar[i]:
+                flags[i].add(FLAG_IMAGE_ONLY)
+            if (p.keypoints[:, 2] >= cfg.init.keypoint_conf).sum() < cfg.min_keypoints:
+                flags[i].add(FLAG_FEW_KEYPOINTS)
+        return Batch(
+            people=list(people),
+            K=torch.as_tensor(np.asarray(K, np.float64), dtype=self.dtype, device=self.device),
+            lidar_origin=np.zeros(3) if lidar_origin is None else np.asarray(lidar_origin, np.float64),
+            options=options,
+            rng=np.random.default_rng(cfg.seed),
+            keypoints=self._tensor([p.keypoints[:, :2] for p in people]),
+            confidence=self._tensor([p.keypoints[:, 2] for p in people]),
+            use_lidar=use_lidar,
+            occluded_image=occluded_image,
+            occluded_lidar=[occluded_parts(p.keypoints[:, 2], vis.keypoint_conf_lidar) for p in people],
+            occluded_joints=occluded_joints,
+            flags=flags,
+            builtin=np.zeros(len(people), dtype=bool),
+        )
+
+    def _initialize(self, batch: Batch) -> None:
+        """Step 1: an external estimate of this model when a person has one, else the built-in one."""
+        cfg = self.config
+        mean_shape = self.model.mean_shape().cpu().double().numpy()
+        K = batch.K.cpu().double().numpy()
+        params: list[BodyParams] = []
+        for i, p in enumerate(batch.people):
+            if p.init is not None and p.init.model == self.model.name:
+                params.append(p.init.copy())
+                batch.flags[i].add(FLAG_EXTERNAL_INIT)
+                continue
+            if p.init is not None:
+                log.warning("person %d: initial estimate is for %r, not %r; using the built-in init",
+                            p.person_id, p.init.model, self.model.name)
+            root, pelvis = initializer.builtin_root(p, K, cfg.init, bool(batch.use_lidar[i]))
+            params.append(BodyParams(self.model.name, mean_shape.copy(), self._neutral_pose.copy(), root, pelvis))
+            batch.builtin[i] = True
+        batch.state = FitState(*self.model.params_tensors(params))
+        if batch.builtin.any():  # place the pelvis: the model's rotation centre may not be its pelvis (SMPL)
+            state = batch.state
+            out = self._forward(state)
+            pelvis_now = 0.5 * (out.keypoints[:, 11] + out.keypoints[:, 12])
+            rows = torch.as_tensor(np.flatnonzero(batch.builtin), device=self.device)
+            with torch.no_grad():
+                state.transl[rows] += state.transl[rows] - pelvis_now[rows]
+
+    def _refine_builtin(self, batch: Batch) -> None:
+        """The built-in estimate's limbs: a short fit to the 2D keypoints with strong priors, translation
+        fixed (people with an external estimate keep theirs)."""
+        cfg = self.config
+        if not batch.builtin.any() or cfg.init.refine_iterations <= 0:
+            return
+        state = batch.state
+        problem = self._problem(batch)
+        spec = StageSpec("init", ("pose", "root_orient"), cfg.init.refine_iterations, None,
+                         cfg.optimizer.weights.sigma_px, 0.0, priors=True)
+        keep = state.clone()
+        diverged = torch.zeros(batch.size, dtype=torch.bool, device=self.device)
+        run_stage(self.model, state, problem, spec, _refine_profile(cfg), cfg.divergence_factor, diverged)
+        state.copy_rows_from(keep, torch.as_tensor(~batch.builtin, device=self.device))
+
+    def _align_to_points(self, batch: Batch) -> None:
+        """Step 2: ICP of the LiDAR-visible vertices to each person's points (Sec. 3.3)."""
+        cfg = self.config
+        batch.icp_ok = np.ones(batch.size, dtype=bool)
+        if not (batch.options.use_icp and cfg.icp.enabled):
+            return
+        verts = self._forward(batch.state).vertices.cpu().numpy()
+        masks = self._visible_masks(batch, verts)
+        translation_only = dataclasses.replace(cfg.icp, estimate_rotation=False)
+        for i, p in enumerate(batch.people):
+            visible = verts[i][masks[i]]
+            if not batch.use_lidar[i]:
+                # too few points for L_3D, but enough to fix the depth along the ray, which the image
+                # cannot (an image HMR's depth errors reach metres)
+                if len(p.points) >= cfg.min_points_depth:
+                    result = align_mesh_to_points(visible, p.points, translation_only)
+                    if result.converged:
+                        self._move(batch.state, i, result.T)
+                continue
+            result = align_mesh_to_points(visible, p.points, cfg.icp)
+            batch.icp_ok[i] = result.converged
+            if result.converged:
+                self._move(batch.state, i, result.T)
+            else:
+                batch.flags[i].add(FLAG_ICP_NOT_CONVERGED)
+                if np.linalg.norm(result.translation) <= cfg.icp.max_translation:
+                    self._move(batch.state, i, transform(t=result.translation))
+
+    def _optimize(self, batch: Batch) -> None:
+        """Step 3: the stages of the profile's scheme (Eq. 2, or Eq. 11-14)."""
+        problem = batch.problem = self._problem(batch)
+        if not batch.options.use_chamfer:
+            problem.use_lidar = torch.zeros_like(problem.use_lidar)
+        batch.final_loss = torch.full((batch.size,), float("nan"))
+        if not batch.options.optimize:
+            return
+        report = optimize(self.model, batch.state, problem, self.config.optimizer, self.config.divergence_factor)
+        batch.final_loss = report.final_loss.cpu()
+        for i in np.flatnonzero(report.diverged.cpu().numpy()):
+            batch.flags[i].add(FLAG_DIVERGED)
+
+    def _results(self, batch: Batch) -> list[BodyFit]:
+        """Fits with their quality: reprojection error and chamfer distance of the final bodies."""
+        state, problem = batch.state, batch.problem
+        out = self._forward(state)
+        with torch.no_grad():
+            err = (project(out.keypoints, batch.K) - batch.keypoints).norm(dim=-1)
+            weights = batch.confidence * (batch.confidence >= self.config.init.keypoint_conf)
+            reprojection = (err * weights).sum(-1) / weights.sum(-1).clamp(min=1e-9)
+            visible = torch.gather(out.vertices[:, problem.vertex_subset], 1,
+                                   problem.vertex_index[..., None].expand(-1, -1, 3))
+            d_vp = nearest_sq_distances(visible, problem.points, problem.point_mask).sqrt()
+            d_pv = nearest_sq_distances(problem.points, visible, problem.vertex_mask).sqrt()
+            centers = self.model.rotation_center(state.shape, state.transl)
+        as_np = {name: getattr(state, name).cpu().double().numpy() for name in PARAM_FIELDS}
+        fits = []
+        for i, p in enumerate(batch.people):
+            n_v, n_p = int(problem.vertex_mask[i].sum()), int(problem.point_mask[i].sum())
+            chamfer = 0.5 * float(d_vp[i, :n_v].mean() + d_pv[i, :n_p].mean()) if n_v and n_p else float("nan")
+            fits.append(BodyFit(
+                person_id=p.person_id,
+                params=BodyParams(self.model.name, *(as_np[n][i] for n in PARAM_FIELDS)),
+                joint_names=list(self.model.joint_names),
+                vertices=out.vertices[i].cpu().numpy().astype(np.float32),
+                keypoints3d=out.keypoints[i].cpu().numpy().astype(np.float32),
+                joints=out.joints[i].cpu().numpy().astype(np.float32),
+                rotation_center=centers[i].cpu().double().numpy(),
+                quality=FitQuality(
+                    reprojection_px=float(reprojection[i]),
+                    chamfer_m=chamfer,
+                    num_points=n_p,
+                    visible_parts=[name for name, occ in zip(PART_NAMES, batch.occluded_image[i]) if not occ],
+                    icp_converged=bool(batch.icp_ok[i]),
+                    final_loss=float(batch.final_loss[i]),
+                ),
+                flags=batch.flags[i],
+            ))
+        return fits
+
+    # -- helpers -----------------------------------------------------------------------------------------
+    def _tensor(self, rows: list[np.ndarray]) -> torch.Tensor:
+        return torch.as_tensor(np.stack(rows), dtype=self.dtype, device=self.device)
+
+    def _forward(self, state: FitState):
+        with torch.no_grad():
+            return self.model(state.shape, state.pose, state.root_orient, state.transl)
+
+    def _move(self, state: FitState, i: int, T: np.ndarray) -> None:
+        """Move person i's body by the rigid transform T (camera frame)."""
+        with torch.no_grad():
+            center = self.model.rotation_center(state.shape[i : i + 1], state.transl[i : i + 1])[0]
+            root, transl, _ = move_body(state.root_orient[i].cpu().double().numpy(),
+                                        state.transl[i].cpu().double().numpy(), center.cpu().double().numpy(), T)
+            state.root_orient[i] = torch.as_tensor(root, dtype=self.dtype, device=self.device)
+            state.transl[i] = torch.as_tensor(transl, dtype=self.dtype, device=self.device)
+
+    def _visible_masks(self, batch: Batch, verts: np.ndarray) -> list[np.ndarray]:
+        """Per person, (V,) bool: the vertices L_3D and ICP use (Eq. 1 and the keypoint rule)."""
+        if not batch.options.use_visibility:
+            return [np.ones(len(v), dtype=bool) for v in verts]
+        threshold = self.config.visibility.culling_threshold
+        return [visible_vertices(verts[i], self.faces_np, self.part_of_face_np, batch.lidar_origin, threshold,
+                                 batch.occluded_lidar[i]) for i in range(batch.size)]
+
+    def _problem(self, batch: Batch) -> FitProblem:
+        """The batched observations of the current bodies: visible vertices (subsampled), points, priors."""
+        opt = self.config.optimizer
+        masks = self._visible_masks(batch, self._forward(batch.state).vertices.cpu().numpy())
+        vertex_rows, point_rows = [], []
+        for i, p in enumerate(batch.people):
+            index = np.flatnonzero(masks[i])
+            index = index[_subsample(len(index), opt.chamfer_max_vertices, batch.rng)]
+            points = p.points[_subsample(len(p.points), opt.chamfer_max_points, batch.rng)]
+            vertex_rows.append(index if batch.use_lidar[i] else index[:0])
+            point_rows.append(points if batch.use_lidar[i] else points[:0])
+        # the vertices any person's L_3D uses are the only ones posed per step
+        subset, positions = np.unique(np.concatenate(vertex_rows + [np.zeros(0, np.int64)]), return_inverse=True)
+        vidx, vmask = _pad_rows(np.split(positions, np.cumsum([len(r) for r in vertex_rows])[:-1]), 0, 0)
+        pts, pmask = _pad_rows(point_rows, 3, 0.0)
+        dev = self.device
+        return FitProblem(
+            K=batch.K, keypoints=batch.keypoints, confidence=batch.confidence,
+            points=torch.as_tensor(pts, dtype=self.dtype, device=dev),
+            point_mask=torch.as_tensor(pmask, device=dev),
+            vertex_subset=torch.as_tensor(subset, dtype=torch.int64, device=dev),
+            vertex_index=torch.as_tensor(vidx, device=dev),
+            vertex_mask=torch.as_tensor(vmask, device=dev),
+            occluded_joints=torch.as_tensor(batch.occluded_joints, dtype=self.dtype, device=dev),
+            init_pose=batch.state.pose.detach().clone(),
+            use_lidar=torch.as_tensor(batch.use_lidar, device=dev),
+        )
+
+
+def _refine_profile(cfg: FittingConfig):
+    opt = cfg.optimizer
+    weights = dataclasses.replace(opt.weights, pose=cfg.init.refine_pose_weight)
+    return dataclasses.replace(opt, lr=cfg.init.refine_lr, weights=weights, early_stop_rel_tol=0.0)

@@ -1,0 +1,182 @@
+"""One frame, from what the sensors gave to fitted bodies: the path the library, the drivers and the
+benchmarks all run.
+
+    Frame -> people selected -> observations (undistorted keypoints, each person's LiDAR points) -> fits
+
+`FrameFitter.fit(frame)` is that path; `fit_frame(frame)` runs it with a cached fitter. The drivers
+(`runtime.processor.MessageProcessor`) add what lies around it: messages in, stamps checked, outputs out.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections import Counter, OrderedDict
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from smplify3d_ros.camera import transform_points, undistort_pixels
+from smplify3d_ros.config import Config, load_config
+from smplify3d_ros.fitting.config import FittingConfig
+from smplify3d_ros.fitting.fitter import FitOptions, Fitter
+from smplify3d_ros.lidar.config import ExtractionConfig
+from smplify3d_ros.lidar.extract import ExtractionResult, extract_people
+from smplify3d_ros.settings import to_dict
+from smplify3d_ros.types import BodyFit, CameraModel, Frame, PersonObservation
+
+# People that are not fitted, by reason (`FrameFits.people_dropped` keys).
+PERSON_FEW_KEYPOINTS = "few_keypoints"  # fewer than people.min_keypoints usable keypoints
+PERSON_OUT_OF_IMAGE = "out_of_image"  # ... because keypoints lie far outside the image
+PERSON_MAX_PEOPLE = "max_people"  # more people than people.max_people: the smallest boxes are left out
+
+
+@dataclass
+class FrameFits:
+    """What one frame gave: the people fitted, their observations and fits, who was left out."""
+
+    frame: Frame  # the frame as fitted: selected people only, each with an id
+    observations: list[PersonObservation]
+    fits: list[BodyFit]  # one per observation, same order
+    lidar_origin: np.ndarray  # (3,) the LiDAR's position in the camera frame
+    people_dropped: Counter = field(default_factory=Counter)  # PERSON_* -> people
+    latency: dict[str, float] = field(default_factory=dict)  # "extract", "fit" -> seconds
+
+
+def _box_area(uv: np.ndarray) -> float:
+    if len(uv) == 0:
+        return 0.0
+    span = uv.max(axis=0) - uv.min(axis=0)
+    return float(span[0] * span[1])
+
+
+def undistorted_keypoints(frame: Frame) -> np.ndarray:
+    """(P, 17, 3) the frame's keypoints as an ideal pinhole camera of the same K would see them."""
+    out = frame.keypoints.astype(np.float64).copy().reshape(-1, 17, 3)
+    if len(out) and frame.camera.has_distortion:
+        out[..., :2] = undistort_pixels(out[..., :2].reshape(-1, 2), frame.camera).reshape(-1, 17, 2)
+    return out
+
+
+def extract_frame_people(frame: Frame, config: ExtractionConfig) -> tuple[np.ndarray, ExtractionResult]:
+    """The frame's undistorted keypoints and each person's points cut out of its scan (camera frame)."""
+    undistorted = undistorted_keypoints(frame)
+    points_cam = transform_points(frame.points_lidar, frame.T_cam_lidar).astype(np.float32)
+    pinhole = CameraModel(frame.camera.K, frame.camera.width, frame.camera.height)
+    return undistorted, extract_people(points_cam, undistorted, pinhole, config)
+
+
+class FrameFitter:
+    """The core configuration and a `Fitter`; `fit(frame)` runs one frame's path (module docstring)."""
+
+    def __init__(self, config: Config, fitter: Fitter | None = None) -> None:
+        self.config = config
+        self.fitter = fitter if fitter is not None else Fitter(config.fitting)
+
+    def select_people(self, frame: Frame) -> tuple[Frame, Counter]:
+        """Usable people only: far out-of-image keypoints become missing, people with too few keypoints
+        and beyond `people.max_people` (smallest boxes) are left out (counted by reason), people without a
+        detector id get one (free ids, left to right, so that colours stay put while people do)."""
+        dropped: Counter = Counter()
+        if len(frame.keypoints) == 0:
+            return frame, dropped
+        kp = frame.keypoints.astype(np.float64).copy()
+        cam, sel = frame.camera, self.config.people
+        conf = self.config.fitting.init.keypoint_conf
+        mx, my = sel.keypoint_margin * cam.width, sel.keypoint_margin * cam.height
+        u, v = kp[..., 0], kp[..., 1]
+        with np.errstate(invalid="ignore"):
+            outside = (u < -mx) | (u > cam.width - 1 + mx) | (v < -my) | (v > cam.height - 1 + my)
+        good_before = (kp[..., 2] >= conf).sum(axis=1)
+        kp[outside] = 0.0
+        good = kp[..., 2] >= conf
+        keep = good.sum(axis=1) >= sel.min_keypoints
+        for i in np.flatnonzero(~keep):
+            dropped[PERSON_OUT_OF_IMAGE if good_before[i] >= sel.min_keypoints else PERSON_FEW_KEYPOINTS] += 1
+        index = np.flatnonzero(keep)
+        if len(index) > sel.max_people:
+            area = np.array([_box_area(kp[i][good[i], :2]) for i in index])
+            dropped[PERSON_MAX_PEOPLE] += len(index) - sel.max_people
+            index = np.sort(index[np.argsort(-area, kind="stable")][: sel.max_people])
+        kp, ids = kp[index], frame.person_ids[index].astype(np.int64)
+        anonymous = np.flatnonzero(ids < 0)
+        if len(anonymous):
+            taken = set(ids[ids >= 0].tolist())
+            free = (i for i in range(len(ids) + len(taken) + 1) if i not in taken)
+            centre_u = [np.mean(kp[i][good[index[i]], 0]) for i in anonymous]
+            for i in anonymous[np.argsort(centre_u, kind="stable")]:
+                ids[i] = next(free)
+        return replace(frame, keypoints=kp, person_ids=ids), dropped
+
+    def observations(self, frame: Frame) -> tuple[list[PersonObservation], np.ndarray]:
+        """Undistort the keypoints, move the scan into the camera frame and cut out each person's points.
+        Returns the observations and the LiDAR origin in the camera frame."""
+        undistorted, extraction = extract_frame_people(frame, self.config.lidar)
+        people = []
+        for i, person in enumerate(extraction.people):
+            pid = int(frame.person_ids[i]) if i < len(frame.person_ids) else -1
+            people.append(PersonObservation(
+                person_id=pid, keypoints=undistorted[i], bbox=np.asarray(person.bbox, dtype=np.float64),
+                points=person.points, init=frame.init_bodies.get(pid) if pid >= 0 else None,
+            ))
+        return people, frame.T_cam_lidar[:3, 3].copy()
+
+    def observe(self, frame: Frame) -> FrameFits:
+        """The path up to the fit: people selected, their observations (`fits` left empty)."""
+        frame, dropped = self.select_people(frame)
+        if len(frame.keypoints) == 0:
+            return FrameFits(frame, [], [], frame.T_cam_lidar[:3, 3].copy(), dropped)
+        t = time.perf_counter()
+        people, origin = self.observations(frame)
+        return FrameFits(frame, people, [], origin, dropped, {"extract": time.perf_counter() - t})
+
+    def fit_observed(self, observed: FrameFits, options: FitOptions | None = None) -> FrameFits:
+        """The fit of `observe`'s people (the bench fits one observation several ways)."""
+        t = time.perf_counter()
+        fits = self.fitter.fit(observed.observations, observed.frame.camera.K, observed.lidar_origin, options)
+        return replace(observed, fits=fits, latency={**observed.latency, "fit": time.perf_counter() - t})
+
+    def fit(self, frame: Frame, options: FitOptions | None = None) -> FrameFits:
+        """The whole path of one frame (module docstring)."""
+        return self.fit_observed(self.observe(frame), options)
+
+
+# -- the library entry point --------------------------------------------------------------------------------
+FITTER_CACHE_SIZE = 2  # fitters kept by `fit_frame` (each holds a body model's tensors)
+_FITTERS: OrderedDict[str, Fitter] = OrderedDict()
+_FITTERS_LOCK = threading.Lock()
+
+
+def cached_fitter(config: FittingConfig) -> Fitter:
+    """A `Fitter` for this configuration's value (two equal configurations share one), least recently used
+    first out beyond `FITTER_CACHE_SIZE`."""
+    key = json.dumps(to_dict(config), sort_keys=True)
+    with _FITTERS_LOCK:
+        fitter = _FITTERS.pop(key, None)
+        if fitter is None:
+            fitter = Fitter(config)
+        _FITTERS[key] = fitter
+        while len(_FITTERS) > FITTER_CACHE_SIZE:
+            _FITTERS.popitem(last=False)
+    return fitter
+
+
+def fit_frame(
+    frame_or_observations: Frame | list[PersonObservation],
+    config: Config | None = None,
+    K: np.ndarray | None = None,
+    options: FitOptions | None = None,
+) -> list[BodyFit]:
+    """Fit every person of a frame. `config` defaults to the default profile (params/jackal_vlp16.yaml).
+
+    A `Frame` runs the whole path (people selected, keypoints undistorted, points cut out of the scan);
+    a list of observations (camera frame, keypoints undistorted) goes straight to the fitter: pass `K`.
+    """
+    config = config or load_config()
+    fitter = cached_fitter(config.fitting)
+    if isinstance(frame_or_observations, Frame):
+        return FrameFitter(config, fitter).fit(frame_or_observations, options).fits
+    if K is None:
+        raise ValueError("fit_frame on observations needs the camera intrinsics K")
+    return fitter.fit(list(frame_or_observations), K, None, options)

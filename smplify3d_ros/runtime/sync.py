@@ -1,0 +1,270 @@
+"""The input synchronizer both drivers use: N inputs, a slop, bounded queues, every drop counted.
+
+`ApproximateTimeSync` is the package's own (the default of the node and the replay). The policy: when a
+message arrives, each other input's message nearest to it in time is taken; if all of them lie within
+`slop` of each other the set is emitted. Messages older than an emitted set can never be part of a later
+one (stamps only grow on each input), so they are dropped as unmatched. A stamp that goes back on an
+input (a bag restarted, simulated time reset) clears every queue: the counters say how often.
+
+`MessageFiltersSync` puts ROS's `message_filters.ApproximateTimeSynchronizer` behind the same interface
+(`sync.use_message_filters: true`, when message_filters is installed): the same `add`, the same
+duplicate and time-reset handling, the same `SyncStats`. message_filters never drops a message that an
+emitted set made too old; it keeps it until its queue overflows, so there such messages are counted as
+`dropped_overflow`, not `dropped_unmatched`.
+
+Thread safe: `add` may be called from several threads; the callback runs outside the lock.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+
+def header_stamp_ns(msg: Any) -> int:
+    """Integer nanoseconds of `msg.header.stamp` (rclpy and rosbags messages alike)."""
+    stamp = msg.header.stamp
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+@dataclass
+class SyncStats:
+    """Counters since construction (or `reset_stats`)."""
+
+    received: list[int] = field(default_factory=list)  # messages per input
+    matched: int = 0  # sets emitted
+    dropped_overflow: int = 0  # messages pushed out of a full queue before any match
+    dropped_unmatched: int = 0  # messages older than an emitted set: they can never match
+    dropped_duplicate: int = 0  # a second message with the same stamp on one input
+    dropped_reset: int = 0  # messages cleared by a time reset
+    time_resets: int = 0  # stamps that went back on an input
+
+    @property
+    def dropped(self) -> int:
+        return self.dropped_overflow + self.dropped_unmatched + self.dropped_duplicate + self.dropped_reset
+
+
+class ApproximateTimeSync:
+    """Match messages of `n_inputs` streams whose stamps lie within `slop_s` of each other.
+
+    `callback(*messages)` receives one message per input, in input order.
+    """
+
+    def __init__(
+        self,
+        n_inputs: int,
+        slop_s: float,
+        queue_size: int,
+        callback: Callable[..., None],
+        stamp_ns: Callable[[Any], int] = header_stamp_ns,
+    ) -> None:
+        if n_inputs < 1:
+            raise ValueError(f"n_inputs must be >= 1, got {n_inputs}")
+        if slop_s < 0:
+            raise ValueError(f"slop_s must be >= 0, got {slop_s}")
+        if queue_size < 1:
+            raise ValueError(f"queue_size must be >= 1, got {queue_size}")
+        self.n_inputs = n_inputs
+        self.slop_ns = round(slop_s * 1e9)
+        self.queue_size = queue_size
+        self.callback = callback
+        self.stamp_ns = stamp_ns
+        self._queues: list[deque[tuple[int, Any]]] = [deque() for _ in range(n_inputs)]
+        self._last: list[int | None] = [None] * n_inputs
+        self._lock = threading.Lock()
+        self.stats = SyncStats(received=[0] * n_inputs)
+
+    # -- public --------------------------------------------------------------------------------------
+    def add(self, index: int, msg: Any, stamp_ns: int | None = None) -> bool:
+        """Offer one message of input `index`; returns True when it completed a set (callback called)."""
+        if not 0 <= index < self.n_inputs:
+            raise IndexError(f"input {index} out of range (0..{self.n_inputs - 1})")
+        stamp = self.stamp_ns(msg) if stamp_ns is None else int(stamp_ns)
+        with self._lock:
+            matched = self._add_locked(index, msg, stamp)
+        if matched is not None:
+            self.callback(*matched)
+            return True
+        return False
+
+    def queue_lengths(self) -> list[int]:
+        with self._lock:
+            return [len(q) for q in self._queues]
+
+    def reset(self) -> None:
+        """Forget every queued message (counted as reset drops) and the last stamps."""
+        with self._lock:
+            self._reset_locked()
+
+    # -- internals -----------------------------------------------------------------------------------
+    def _reset_locked(self) -> None:
+        self.stats.dropped_reset += sum(len(q) for q in self._queues)
+        for q in self._queues:
+            q.clear()
+        self._last = [None] * self.n_inputs
+
+    def _add_locked(self, index: int, msg: Any, stamp: int) -> list[Any] | None:
+        stats = self.stats
+        stats.received[index] += 1
+        last = self._last[index]
+        if last is not None and stamp < last:
+            stats.time_resets += 1
+            self._reset_locked()
+        elif last is not None and stamp == last:
+            stats.dropped_duplicate += 1
+            return None
+        self._last[index] = stamp
+        queue = self._queues[index]
+        queue.append((stamp, msg))
+        if len(queue) > self.queue_size:
+            queue.popleft()
+            stats.dropped_overflow += 1
+        picks = self._nearest(index, stamp)
+        if picks is None:
+            return None
+        stamps = [self._queues[i][k][0] for i, k in enumerate(picks)]
+        if max(stamps) - min(stamps) > self.slop_ns:
+            return None
+        out = []
+        for i, k in enumerate(picks):
+            q = self._queues[i]
+            for _ in range(k):  # older than the emitted set: can never match again
+                q.popleft()
+                stats.dropped_unmatched += 1
+            out.append(q.popleft()[1])
+        stats.matched += 1
+        return out
+
+    def _nearest(self, index: int, stamp: int) -> list[int] | None:
+        """Per input, the queue position of the message nearest to `stamp` (None if a queue is empty)."""
+        picks = []
+        for i, q in enumerate(self._queues):
+            if not q:
+                return None
+            if i == index:
+                picks.append(len(q) - 1)
+                continue
+            picks.append(min(range(len(q)), key=lambda k, q=q: abs(q[k][0] - stamp)))
+        return picks
+
+
+
+class Synchronizer(Protocol):
+    stats: SyncStats
+
+    def add(self, index: int, msg: Any, stamp_ns: int | None = None) -> bool: ...
+
+    def reset(self) -> None: ...
+
+
+class MessageFiltersSync:
+    """message_filters' approximate-time synchronizer with `ApproximateTimeSync`'s interface (module
+    docstring). Each input is a `message_filters.SimpleFilter` fed by `add`; the synchronizer's queues
+    (a dict of stamps per input, the smallest evicted beyond `queue_size`) are mirrored to count drops."""
+
+    def __init__(
+        self,
+        n_inputs: int,
+        slop_s: float,
+        queue_size: int,
+        callback: Callable[..., None],
+        stamp_ns: Callable[[Any], int] = header_stamp_ns,
+    ) -> None:
+        import message_filters
+
+        self._mf = message_filters
+        self.n_inputs = n_inputs
+        self.slop_s = slop_s
+        self.queue_size = queue_size
+        self.callback = callback
+        self.stamp_ns = stamp_ns
+        self.stats = SyncStats(received=[0] * n_inputs)
+        self._lock = threading.RLock()
+        self._emitted: list[Any] | None = None
+        self._build()
+
+    def _build(self) -> None:
+        self._filters = [self._mf.SimpleFilter() for _ in range(self.n_inputs)]
+        self._sync = self._mf.ApproximateTimeSynchronizer(self._filters, self.queue_size, self.slop_s)
+        self._sync.registerCallback(self._on_set)
+        self._queued: list[set[int]] = [set() for _ in range(self.n_inputs)]
+        self._last: list[int | None] = [None] * self.n_inputs
+
+    def _on_set(self, *msgs: Any) -> None:
+        self._emitted = list(msgs)
+
+    def add(self, index: int, msg: Any, stamp_ns: int | None = None) -> bool:
+        if not 0 <= index < self.n_inputs:
+            raise IndexError(f"input {index} out of range (0..{self.n_inputs - 1})")
+        stamp = self.stamp_ns(msg) if stamp_ns is None else int(stamp_ns)
+        with self._lock:
+            matched = self._add_locked(index, msg, stamp)
+        if matched is not None:
+            self.callback(*matched)
+            return True
+        return False
+
+    def _add_locked(self, index: int, msg: Any, stamp: int) -> list[Any] | None:
+        stats = self.stats
+        stats.received[index] += 1
+        last = self._last[index]
+        if last is not None and stamp < last:
+            stats.time_resets += 1
+            self.reset()
+        elif last is not None and stamp == last:
+            stats.dropped_duplicate += 1
+            return None
+        self._last[index] = stamp
+        queue = self._queued[index]
+        queue.add(stamp)
+        if len(queue) > self.queue_size:
+            queue.discard(min(queue))
+            stats.dropped_overflow += 1
+        self._emitted = None
+        self._filters[index].signalMessage(msg)
+        matched, self._emitted = self._emitted, None
+        if matched is None:
+            return None
+        for i, m in enumerate(matched):
+            self._queued[i].discard(self.stamp_ns(m))
+        stats.matched += 1
+        return matched
+
+    def queue_lengths(self) -> list[int]:
+        with self._lock:
+            return [len(q) for q in self._queued]
+
+    def reset(self) -> None:
+        """Forget every queued message (counted as reset drops): a new message_filters synchronizer."""
+        with self._lock:
+            self.stats.dropped_reset += sum(len(q) for q in self._queued)
+            self._build()
+
+
+def make_synchronizer(
+    n_inputs: int, slop_s: float, queue_size: int, callback: Callable[..., None], use_message_filters: bool,
+    log: Any = None,
+) -> Synchronizer:
+    """The built-in synchronizer, or message_filters' when asked for and importable (else the built-in,
+    with a log line saying so)."""
+    if use_message_filters:
+        try:
+            return MessageFiltersSync(n_inputs, slop_s, queue_size, callback)
+        except ImportError:
+            if log is not None:
+                log.info("sync.use_message_filters: message_filters is not installed; using the built-in "
+                         "synchronizer")
+    return ApproximateTimeSync(n_inputs, slop_s, queue_size, callback)
+
+
+def sync_values(sync: Synchronizer) -> dict[str, int]:
+    """The synchronizer's counters as /diagnostics values (`sync.*`), the same for either implementation."""
+    s = sync.stats
+    return {
+        "sync.matched": s.matched, "sync.dropped_unmatched": s.dropped_unmatched,
+        "sync.dropped_overflow": s.dropped_overflow, "sync.dropped_duplicate": s.dropped_duplicate,
+        "sync.dropped_reset": s.dropped_reset, "sync.time_resets": s.time_resets,
+    }
