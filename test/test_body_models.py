@@ -1,11 +1,14 @@
 """Both body-model backends: Anny (embedded) and SMPL through a made-up SMPL-format file."""
 
+import codecs
 import pickle
+import struct
 import sys
 import types
 
 import numpy as np
 import pytest
+import scipy.sparse
 import torch
 
 from smplify3d_ros.body.joints import BODY_JOINTS
@@ -184,6 +187,61 @@ def test_smpl_official_pickle_without_chumpy(tmp_path, rng, monkeypatch):
     assert torch.allclose(out.keypoints[0, KP["nose"]], out.vertices[0, 332])
     pose = torch.full((1, 19, 3), 0.3)
     assert model.gmm is None and model.pose_prior(pose).item() == model.joint_range_prior(pose).item()
+
+
+class _Python2Pickler(pickle._Pickler):
+    """Writes bytes as Python 2's str (STRING / BINSTRING opcodes), as the official files hold them."""
+
+    dispatch = dict(pickle._Pickler.dispatch)
+
+    def save_bytes(self, obj: bytes) -> None:
+        if self.proto == 0:
+            self.write(b"S'" + codecs.escape_encode(obj)[0] + b"'\n")
+        elif len(obj) < 256:
+            self.write(b"U" + bytes([len(obj)]) + obj)
+        else:
+            self.write(b"T" + struct.pack("<i", len(obj)) + obj)
+        self.memoize(obj)
+
+    dispatch[bytes] = save_bytes
+
+
+def _python2_era_pickle(data: dict, protocol: int) -> bytes:
+    """What Python 2 with numpy 1 / scipy < 1.8 wrote: py2 str keys and array bytes, numpy.core and
+    scipy.sparse.csc module paths, __builtin__ / copy_reg names."""
+    buffer = __import__("io").BytesIO()
+    _Python2Pickler(buffer, protocol).dump({k.encode(): v for k, v in data.items()})
+    raw = buffer.getvalue()
+    assert b"numpy._core." in raw and b"scipy.sparse._csc" in raw  # the paths we rewrite are there
+    return raw.replace(b"numpy._core.", b"numpy.core.").replace(b"scipy.sparse._", b"scipy.sparse.")
+
+
+@pytest.mark.parametrize("protocol", [0, 2])
+def test_smpl_python2_era_pickle_with_sparse_regressor(tmp_path, rng, protocol):
+    """The official file's layout: sparse J_regressor, chumpy-free arrays of several dtypes, strings and a
+    dict the model does not need; it loads through the allowlist and builds the model."""
+    arrays = _made_up_smpl(rng, n_verts=6890)
+    data = dict(arrays, J_regressor=scipy.sparse.csc_matrix(arrays["J_regressor"]), bs_style="lbs",
+                f=arrays["f"].astype(np.uint32), pose_training_info={"num_poses": 1786})
+    path = tmp_path / f"basicModel_p{protocol}.pkl"
+    path.write_bytes(_python2_era_pickle(data, protocol))
+    skipped: list[str] = []
+    loaded = load_arrays(path, skipped)
+    assert sorted(skipped) == ["bs_style", "pose_training_info"]
+    np.testing.assert_array_equal(loaded["J_regressor"], arrays["J_regressor"])
+    np.testing.assert_array_equal(loaded["posedirs"], arrays["posedirs"])
+    assert loaded["f"].dtype == np.uint32
+    model = SmplBody.from_config(_smpl_config(tmp_path, path))
+    assert torch.isfinite(_run(model).vertices).all()
+
+
+def test_smpl_sparse_matrix_with_bad_indices_is_refused(tmp_path):
+    """scipy's own toarray trusts the indices; the stand-in checks them before densifying."""
+    matrix = scipy.sparse.csr_matrix(np.eye(3))
+    matrix.indices = np.array([0, 1, 7], dtype=matrix.indices.dtype)  # column 7 of a 3-column matrix
+    (tmp_path / "bad.pkl").write_bytes(pickle.dumps({"J_regressor": matrix}))
+    with pytest.raises(SmplFileError, match="'J_regressor': sparse matrix: indices out of range"):
+        load_arrays(tmp_path / "bad.pkl")
 
 
 def test_smpl_bad_files_raise_clear_errors(tmp_path, rng):
