@@ -258,3 +258,53 @@ def test_smpl_bad_files_raise_clear_errors(tmp_path, rng):
     (tmp_path / "evil.pkl").write_bytes(pickle.dumps({"f": __import__("os").getcwd}))
     with pytest.raises(SmplFileError, match="refusing"):
         load_arrays(tmp_path / "evil.pkl")
+
+
+# -- smplify3d smpl-to-npz --------------------------------------------------------------------------------
+def test_smpl_to_npz_round_trip(tmp_path, rng, capsys):
+    """pkl -> npz keeps every numeric array bit for bit, the npz loads without pickle and gives the
+    same model."""
+    from smplify3d_ros.cli import main
+
+    data = dict(_made_up_smpl(rng, n_verts=6890), bs_style="lbs")
+    data["J_regressor"] = scipy.sparse.csc_matrix(data["J_regressor"])
+    pkl = tmp_path / "SMPL_NEUTRAL.pkl"
+    pkl.write_bytes(_python2_era_pickle(data, 2))
+    assert main(["smpl-to-npz", str(pkl)]) == 0
+    assert capsys.readouterr().out.strip() == f"wrote {tmp_path / 'SMPL_NEUTRAL.npz'}; left out (not numeric " \
+                                              "arrays): bs_style"
+    from_pkl = load_arrays(pkl)
+    with np.load(tmp_path / "SMPL_NEUTRAL.npz", allow_pickle=False) as npz:
+        assert sorted(npz.files) == sorted(from_pkl)
+        for key, value in from_pkl.items():
+            assert npz[key].dtype == value.dtype and np.array_equal(npz[key], value), key
+    outputs = [_run(SmplBody.from_config(_smpl_config(tmp_path, tmp_path / name))).vertices
+               for name in ("SMPL_NEUTRAL.pkl", "SMPL_NEUTRAL.npz")]
+    assert torch.equal(*outputs)
+    assert main(["smpl-to-npz", str(pkl), "-o", str(tmp_path / "other.npz")]) == 0  # -o names the output
+    assert (tmp_path / "other.npz").is_file()
+
+
+@pytest.mark.parametrize("args,message", [
+    (["{tmp}/missing.pkl"], "file not found: {tmp}/missing.pkl"),
+    (["{tmp}/model.npz"], "{tmp}/model.npz: expected a .pkl file"),
+    (["{tmp}/model.pkl", "-o", "{tmp}/model.zip"], "{tmp}/model.zip: the output must be a .npz file"),
+    (["{tmp}/model.pkl", "-o", "{tmp}/no/dir/out.npz"], "{tmp}/no/dir: no such directory"),
+    (["{tmp}/model.pkl", "-o", "{tmp}/exists.npz"], "{tmp}/exists.npz exists (--force replaces it)"),
+    (["{tmp}/broken.pkl"], "{tmp}/broken.pkl: cannot read"),
+])
+def test_smpl_to_npz_bad_paths(tmp_path, rng, capsys, args, message):
+    """One line on stderr naming the file, exit code 2, no traceback, nothing written."""
+    from smplify3d_ros.cli import main
+
+    np.savez(tmp_path / "model.npz", **_made_up_smpl(rng))
+    (tmp_path / "model.pkl").write_bytes(pickle.dumps(_made_up_smpl(rng)))
+    (tmp_path / "exists.npz").write_bytes(b"keep me")
+    (tmp_path / "broken.pkl").write_bytes(b"\x80\x04not a pickle")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["smpl-to-npz", *(a.format(tmp=tmp_path) for a in args)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith("smplify3d smpl-to-npz: " + message.format(tmp=tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert (tmp_path / "exists.npz").read_bytes() == b"keep me"

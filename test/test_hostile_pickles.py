@@ -155,3 +155,15 @@ def test_a_loader_function_cannot_be_modified(tmp_path):
     path.write_bytes(b"ccopy_reg\n_reconstructor\n(dS'__defaults__'\nI1\nsb.")
     with pytest.raises(SmplFileError, match="tried to modify a loader function"):
         load_arrays(path)
+
+
+@pytest.mark.parametrize("gadget", sorted(GADGETS))
+def test_smpl_to_npz_refuses(tmp_path, capsys, gadget):
+    """The converter reads through the same loader: exit code 2, one line naming the object, no output."""
+    from smplify3d_ros.cli import main
+
+    path, marker, expected = _hostile_file(tmp_path, gadget)
+    assert main(["smpl-to-npz", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"smplify3d smpl-to-npz: refusing to load {expected} from {path}: SMPL files hold only arrays\n"
+    assert not marker.exists() and not path.with_suffix(".npz").exists()

@@ -63,6 +63,12 @@ class SmplFileError(ValueError):
     """The SMPL model (or regressor, or prior) file is missing, unreadable or malformed."""
 
 
+def _one_line(text: object, n: int = 100) -> str:
+    """Text from a file or an exception, shortened to one line for an error message."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= n else text[:n] + "..."
+
+
 # -- chumpy-free, code-free loading -------------------------------------------------------------------
 # A pickle names the callables it wants run; the unpickler below hands out only these. The official SMPL
 # / SMPLify files (written by Python 2) and pickles written by Python 3 (protocols 0 to 5) need nothing
@@ -134,7 +140,7 @@ class _SparseStandIn:
 def _sparse_shape(value) -> tuple[int, int]:
     shape = tuple(int(n) for n in np.asarray(value, dtype=np.int64).reshape(-1)) if value is not None else ()
     if len(shape) != 2 or min(shape) < 0 or shape[0] * shape[1] > _MAX_SPARSE_CELLS:
-        raise SmplFileError(f"sparse matrix with unusable shape {str(value)[:50]}")
+        raise SmplFileError(f"sparse matrix with unusable shape {_one_line(value, 50)}")
     return shape
 
 
@@ -179,7 +185,7 @@ def _latin1_encode(text, encoding="latin1"):
     """What Python 3 writes for bytes at protocol < 3: `_codecs.encode(text, 'latin1')`; other codecs
     are refused (a codec is looked up, and so imported, by name)."""
     if not isinstance(text, str) or encoding not in ("latin1", "latin-1"):
-        raise SmplFileError(f"refusing _codecs.encode with codec {str(encoding)[:30]!r}")
+        raise SmplFileError(f"refusing _codecs.encode with codec {_one_line(repr(encoding), 40)}")
     return text.encode("latin1")
 
 
@@ -220,7 +226,7 @@ class _SmplUnpickler(pickle.Unpickler):
     def find_class(self, module: str, name: str):
         found = _resolve(module, name)
         if found is None:
-            raise SmplFileError(f"refusing to load {f'{module}.{name}'[:100]} from {self.path}: "
+            raise SmplFileError(f"refusing to load {_one_line(f'{module}.{name}')} from {self.path}: "
                                 "SMPL files hold only arrays")
         return found
 
@@ -245,9 +251,9 @@ def load_arrays(path: str | Path, skipped: list[str] | None = None) -> dict[str,
         try:
             array = _to_dense(value)
         except SmplFileError as exc:
-            raise SmplFileError(f"{path}: {key[:100]!r}: {exc}") from exc
+            raise SmplFileError(f"{path}: {_one_line(repr(key))}: {exc}") from exc
         except Exception as exc:  # noqa: BLE001 - a malformed entry is a file problem
-            raise SmplFileError(f"{path}: {key[:100]!r}: cannot read ({str(exc)[:200]})") from exc
+            raise SmplFileError(f"{path}: {_one_line(repr(key))}: cannot read ({_one_line(exc, 200)})") from exc
         if array is None:
             if skipped is not None:
                 skipped.append(key)
@@ -269,7 +275,7 @@ def _read_raw(path: Path):
     except SmplFileError:
         raise
     except Exception as exc:  # noqa: BLE001 - any parse failure is reported as a file problem
-        raise SmplFileError(f"{path}: cannot read ({str(exc)[:200]})") from exc
+        raise SmplFileError(f"{path}: cannot read ({_one_line(exc, 200)})") from exc
     raise SmplFileError(f"{path}: expected a .pkl, .npz or .npy file")
 
 
