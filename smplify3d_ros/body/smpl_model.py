@@ -113,12 +113,12 @@ class _SparseStandIn:
         self.state = {}
 
     def __setstate__(self, state) -> None:
-        if not isinstance(state, dict):
-            raise SmplFileError(f"a {self.format} sparse matrix holds {type(state).__name__}, expected a dict")
-        self.state = state
+        self.state = state  # checked by toarray, where errors can name the key
 
     def toarray(self) -> np.ndarray:
         state = getattr(self, "state", {})
+        if not isinstance(state, dict):
+            raise SmplFileError(f"a {self.format} sparse matrix holds {type(state).__name__}, expected a dict")
         shape = _sparse_shape(state.get("_shape", state.get("shape")))
         data = _numeric(state.get("data"), "sparse data")
         if self.format == "coo":
@@ -272,8 +272,10 @@ def _read_raw(path: Path):
                 return _SmplUnpickler(handle, path).load()
         if path.suffix == ".npy":
             return {"array": np.load(path, allow_pickle=False)}
-    except SmplFileError:
-        raise
+    except SmplFileError as exc:
+        if str(path) in str(exc):
+            raise
+        raise SmplFileError(f"{path}: {exc}") from exc  # raised by a stand-in, which does not know the file
     except Exception as exc:  # noqa: BLE001 - any parse failure is reported as a file problem
         raise SmplFileError(f"{path}: cannot read ({_one_line(exc, 200)})") from exc
     raise SmplFileError(f"{path}: expected a .pkl, .npz or .npy file")
