@@ -5,7 +5,7 @@ messages through a `MessageFactory` (`RclpyFactory` or `RosbagsFactory`; default
 No algorithm lives here, and nothing imports rclpy at import time.
 """
 
-from msg_adapters.bodies import BodiesError, bodies_json_to_params, fits_to_bodies_json
+from msg_adapters.bodies import BodiesError, bodies_json_to_params, clip, fits_to_bodies_json
 from msg_adapters.camera_info import CameraInfoError, camera_info_to_model, camera_model_to_msg
 from msg_adapters.diagnostics import diagnostics_array
 from msg_adapters.factory import (
@@ -62,6 +62,7 @@ __all__ = [
     "bodies_json_to_params",
     "camera_info_to_model",
     "camera_model_to_msg",
+    "clip",
     "compressed_to_numpy",
     "default_factory",
     "diagnostics_array",

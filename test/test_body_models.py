@@ -1,11 +1,14 @@
 """Both body-model backends: Anny (embedded) and SMPL through a made-up SMPL-format file."""
 
+import codecs
 import pickle
+import struct
 import sys
 import types
 
 import numpy as np
 import pytest
+import scipy.sparse
 import torch
 
 from smplify3d_ros.body.joints import BODY_JOINTS
@@ -186,6 +189,61 @@ def test_smpl_official_pickle_without_chumpy(tmp_path, rng, monkeypatch):
     assert model.gmm is None and model.pose_prior(pose).item() == model.joint_range_prior(pose).item()
 
 
+class _Python2Pickler(pickle._Pickler):
+    """Writes bytes as Python 2's str (STRING / BINSTRING opcodes), as the official files hold them."""
+
+    dispatch = dict(pickle._Pickler.dispatch)
+
+    def save_bytes(self, obj: bytes) -> None:
+        if self.proto == 0:
+            self.write(b"S'" + codecs.escape_encode(obj)[0] + b"'\n")
+        elif len(obj) < 256:
+            self.write(b"U" + bytes([len(obj)]) + obj)
+        else:
+            self.write(b"T" + struct.pack("<i", len(obj)) + obj)
+        self.memoize(obj)
+
+    dispatch[bytes] = save_bytes
+
+
+def _python2_era_pickle(data: dict, protocol: int) -> bytes:
+    """What Python 2 with numpy 1 / scipy < 1.8 wrote: py2 str keys and array bytes, numpy.core and
+    scipy.sparse.csc module paths, __builtin__ / copy_reg names."""
+    buffer = __import__("io").BytesIO()
+    _Python2Pickler(buffer, protocol).dump({k.encode(): v for k, v in data.items()})
+    raw = buffer.getvalue()
+    assert b"numpy._core." in raw and b"scipy.sparse._csc" in raw  # the paths we rewrite are there
+    return raw.replace(b"numpy._core.", b"numpy.core.").replace(b"scipy.sparse._", b"scipy.sparse.")
+
+
+@pytest.mark.parametrize("protocol", [0, 2])
+def test_smpl_python2_era_pickle_with_sparse_regressor(tmp_path, rng, protocol):
+    """The official file's layout: sparse J_regressor, chumpy-free arrays of several dtypes, strings and a
+    dict the model does not need; it loads through the allowlist and builds the model."""
+    arrays = _made_up_smpl(rng, n_verts=6890)
+    data = dict(arrays, J_regressor=scipy.sparse.csc_matrix(arrays["J_regressor"]), bs_style="lbs",
+                f=arrays["f"].astype(np.uint32), pose_training_info={"num_poses": 1786})
+    path = tmp_path / f"basicModel_p{protocol}.pkl"
+    path.write_bytes(_python2_era_pickle(data, protocol))
+    skipped: list[str] = []
+    loaded = load_arrays(path, skipped)
+    assert sorted(skipped) == ["bs_style", "pose_training_info"]
+    np.testing.assert_array_equal(loaded["J_regressor"], arrays["J_regressor"])
+    np.testing.assert_array_equal(loaded["posedirs"], arrays["posedirs"])
+    assert loaded["f"].dtype == np.uint32
+    model = SmplBody.from_config(_smpl_config(tmp_path, path))
+    assert torch.isfinite(_run(model).vertices).all()
+
+
+def test_smpl_sparse_matrix_with_bad_indices_is_refused(tmp_path):
+    """scipy's own toarray trusts the indices; the stand-in checks them before densifying."""
+    matrix = scipy.sparse.csr_matrix(np.eye(3))
+    matrix.indices = np.array([0, 1, 7], dtype=matrix.indices.dtype)  # column 7 of a 3-column matrix
+    (tmp_path / "bad.pkl").write_bytes(pickle.dumps({"J_regressor": matrix}))
+    with pytest.raises(SmplFileError, match="'J_regressor': sparse matrix: indices out of range"):
+        load_arrays(tmp_path / "bad.pkl")
+
+
 def test_smpl_bad_files_raise_clear_errors(tmp_path, rng):
     with pytest.raises(SmplFileError, match="not found"):
         load_arrays(tmp_path / "missing.pkl")
@@ -200,3 +258,53 @@ def test_smpl_bad_files_raise_clear_errors(tmp_path, rng):
     (tmp_path / "evil.pkl").write_bytes(pickle.dumps({"f": __import__("os").getcwd}))
     with pytest.raises(SmplFileError, match="refusing"):
         load_arrays(tmp_path / "evil.pkl")
+
+
+# -- smplify3d smpl-to-npz --------------------------------------------------------------------------------
+def test_smpl_to_npz_round_trip(tmp_path, rng, capsys):
+    """pkl -> npz keeps every numeric array bit for bit, the npz loads without pickle and gives the
+    same model."""
+    from smplify3d_ros.cli import main
+
+    data = dict(_made_up_smpl(rng, n_verts=6890), bs_style="lbs")
+    data["J_regressor"] = scipy.sparse.csc_matrix(data["J_regressor"])
+    pkl = tmp_path / "SMPL_NEUTRAL.pkl"
+    pkl.write_bytes(_python2_era_pickle(data, 2))
+    assert main(["smpl-to-npz", str(pkl)]) == 0
+    assert capsys.readouterr().out.strip() == f"wrote {tmp_path / 'SMPL_NEUTRAL.npz'}; left out (not numeric " \
+                                              "arrays): bs_style"
+    from_pkl = load_arrays(pkl)
+    with np.load(tmp_path / "SMPL_NEUTRAL.npz", allow_pickle=False) as npz:
+        assert sorted(npz.files) == sorted(from_pkl)
+        for key, value in from_pkl.items():
+            assert npz[key].dtype == value.dtype and np.array_equal(npz[key], value), key
+    outputs = [_run(SmplBody.from_config(_smpl_config(tmp_path, tmp_path / name))).vertices
+               for name in ("SMPL_NEUTRAL.pkl", "SMPL_NEUTRAL.npz")]
+    assert torch.equal(*outputs)
+    assert main(["smpl-to-npz", str(pkl), "-o", str(tmp_path / "other.npz")]) == 0  # -o names the output
+    assert (tmp_path / "other.npz").is_file()
+
+
+@pytest.mark.parametrize("args,message", [
+    (["{tmp}/missing.pkl"], "file not found: {tmp}/missing.pkl"),
+    (["{tmp}/model.npz"], "{tmp}/model.npz: expected a .pkl file"),
+    (["{tmp}/model.pkl", "-o", "{tmp}/model.zip"], "{tmp}/model.zip: the output must be a .npz file"),
+    (["{tmp}/model.pkl", "-o", "{tmp}/no/dir/out.npz"], "{tmp}/no/dir: no such directory"),
+    (["{tmp}/model.pkl", "-o", "{tmp}/exists.npz"], "{tmp}/exists.npz exists (--force replaces it)"),
+    (["{tmp}/broken.pkl"], "{tmp}/broken.pkl: cannot read"),
+])
+def test_smpl_to_npz_bad_paths(tmp_path, rng, capsys, args, message):
+    """One line on stderr naming the file, exit code 2, no traceback, nothing written."""
+    from smplify3d_ros.cli import main
+
+    np.savez(tmp_path / "model.npz", **_made_up_smpl(rng))
+    (tmp_path / "model.pkl").write_bytes(pickle.dumps(_made_up_smpl(rng)))
+    (tmp_path / "exists.npz").write_bytes(b"keep me")
+    (tmp_path / "broken.pkl").write_bytes(b"\x80\x04not a pickle")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["smpl-to-npz", *(a.format(tmp=tmp_path) for a in args)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith("smplify3d smpl-to-npz: " + message.format(tmp=tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert (tmp_path / "exists.npz").read_bytes() == b"keep me"

@@ -1,7 +1,9 @@
 """SMPL from a user-given model file (SMPL files are licensed: none ships with the project).
 
-Loads the official `.pkl` (without chumpy: its arrays are rebuilt by a restricted unpickler) or an `.npz`
-with the same keys (v_template, shapedirs, posedirs, J_regressor, weights, kintree_table, f).
+Loads an `.npz` (preferred: no pickle at all; `smplify3d smpl-to-npz` converts) or the official `.pkl`
+with the same keys (v_template, shapedirs, posedirs, J_regressor, weights, kintree_table, f). A pickle can
+name any function to run; ours hands out only an exact allowlist of array-building names (numpy arrays,
+stand-ins for chumpy and scipy sparse matrices) and refuses everything else before it runs (docs/smpl.md).
 Forward kinematics follow smplx's `lbs` (blend shapes, joint regression, rigid chain, skinning), written
 as small pure functions. `transl` keeps SMPL's meaning (v = R (v − j0) + j0 + t), so the output of any
 SMPL-compatible image HMR (CLIFF...) can be used as it is.
@@ -17,6 +19,8 @@ user-given file; without it, the anatomical joint-range prior shared with Anny.
 
 from __future__ import annotations
 
+import copyreg
+import importlib
 import pickle
 from pathlib import Path
 
@@ -59,7 +63,32 @@ class SmplFileError(ValueError):
     """The SMPL model (or regressor, or prior) file is missing, unreadable or malformed."""
 
 
-# -- chumpy-free loading -----------------------------------------------------------------------------
+def _one_line(text: object, n: int = 100) -> str:
+    """Text from a file or an exception, shortened to one line for an error message."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= n else text[:n] + "..."
+
+
+# -- chumpy-free, code-free loading -------------------------------------------------------------------
+# A pickle names the callables it wants run; the unpickler below hands out only these. The official SMPL
+# / SMPLify files (written by Python 2) and pickles written by Python 3 (protocols 0 to 5) need nothing
+# else: numpy arrays, dtypes and scalars, scipy sparse matrices (old and new module paths), chumpy arrays,
+# sets (chumpy's state), copy_reg's reconstructor (protocols 0/1) and _codecs.encode (bytes, protocol <3).
+_NUMPY_NAMES = {
+    ("numpy", "ndarray"), ("numpy", "dtype"),
+    ("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"),
+    ("numpy.core.numeric", "_frombuffer"), ("numpy._core.numeric", "_frombuffer"),  # protocol 5
+}
+_SPARSE_FORMATS = {"csc_matrix": "csc", "csr_matrix": "csr", "coo_matrix": "coo"}
+_SPARSE_NAMES = {
+    (f"scipy.sparse{sep}{fmt}", cls): fmt
+    for cls, fmt in _SPARSE_FORMATS.items() for sep in (".", "._")
+}
+_BUILTIN_NAMES = {"object", "set"}  # object: copy_reg._reconstructor's base; set: chumpy's _dirty_vars
+_MAX_SPARSE_CELLS = 10**8  # a dense (24, 6890) J_regressor has 1.7e5; refuse absurd shapes before allocating
+
+
 class _ChumpyStandIn:
     """Replaces chumpy.Ch while unpickling: keeps the wrapped array (`x`) and nothing else."""
 
@@ -70,49 +99,198 @@ class _ChumpyStandIn:
         self.state = state if isinstance(state, dict) else {"x": state}
 
     def __array__(self, dtype=None, copy=None):
-        return np.asarray(self.state.get("x"), dtype=dtype)
+        return np.asarray(getattr(self, "state", {}).get("x"), dtype=dtype)
+
+
+class _SparseStandIn:
+    """Replaces a scipy sparse matrix while unpickling: keeps its arrays, densified by `toarray` with
+    numpy after checking them (scipy's own toarray trusts the indices: a bad file could write out of
+    bounds)."""
+
+    format = ""
+
+    def __init__(self, *args, **kwargs) -> None:
+        self.state = {}
+
+    def __setstate__(self, state) -> None:
+        self.state = state  # checked by toarray, where errors can name the key
+
+    def toarray(self) -> np.ndarray:
+        state = getattr(self, "state", {})
+        if not isinstance(state, dict):
+            raise SmplFileError(f"a {self.format} sparse matrix holds {type(state).__name__}, expected a dict")
+        shape = _sparse_shape(state.get("_shape", state.get("shape")))
+        data = _numeric(state.get("data"), "sparse data")
+        if self.format == "coo":
+            coords = state.get("coords", (state.get("row"), state.get("col")))
+            rows, cols = (_indices(c, n, len(data)) for c, n in zip(coords, shape, strict=True))
+        else:
+            major, minor = shape if self.format == "csr" else shape[::-1]
+            indptr = _numeric(state.get("indptr"), "sparse indptr").astype(np.int64)
+            if indptr.shape != (major + 1,) or indptr[0] != 0 or indptr[-1] != len(data) or (np.diff(indptr) < 0).any():
+                raise SmplFileError(f"{self.format} sparse matrix: inconsistent indptr")
+            outer = np.repeat(np.arange(major), np.diff(indptr))
+            inner = _indices(state.get("indices"), minor, len(data))
+            rows, cols = (outer, inner) if self.format == "csr" else (inner, outer)
+        dense = np.zeros(shape, dtype=data.dtype)
+        np.add.at(dense, (rows, cols), data)  # duplicates add up, as in scipy
+        return dense
+
+
+def _sparse_shape(value) -> tuple[int, int]:
+    shape = tuple(int(n) for n in np.asarray(value, dtype=np.int64).reshape(-1)) if value is not None else ()
+    if len(shape) != 2 or min(shape) < 0 or shape[0] * shape[1] > _MAX_SPARSE_CELLS:
+        raise SmplFileError(f"sparse matrix with unusable shape {_one_line(value, 50)}")
+    return shape
+
+
+def _numeric(value, what: str) -> np.ndarray:
+    array = np.asarray(value)
+    if array.dtype.kind not in "biuf" or array.ndim != 1:
+        raise SmplFileError(f"{what} must be a 1-D numeric array, got {array.dtype} {array.shape}")
+    return array
+
+
+def _indices(value, size: int, count: int) -> np.ndarray:
+    index = _numeric(value, "sparse indices").astype(np.int64)
+    if len(index) != count or (count and (index.min() < 0 or index.max() >= size)):
+        raise SmplFileError("sparse matrix: indices out of range or not one per value")
+    return index
+
+
+def _sparse_class(fmt: str) -> type:
+    return type(f"_{fmt.capitalize()}StandIn", (_SparseStandIn,), {"format": fmt})
+
+
+_SPARSE_CLASSES = {fmt: _sparse_class(fmt) for fmt in set(_SPARSE_FORMATS.values())}
+
+
+class _Sealed:
+    """A callable the pickle may call but not modify: BUILD on a plain function would set its
+    attributes (__defaults__...) for the rest of the process."""
+
+    __slots__ = ("_func",)
+
+    def __init__(self, func) -> None:
+        self._func = func
+
+    def __call__(self, *args):
+        return self._func(*args)
+
+    def __setstate__(self, state) -> None:
+        raise SmplFileError("an SMPL file tried to modify a loader function")
+
+
+def _latin1_encode(text, encoding="latin1"):
+    """What Python 3 writes for bytes at protocol < 3: `_codecs.encode(text, 'latin1')`; other codecs
+    are refused (a codec is looked up, and so imported, by name)."""
+    if not isinstance(text, str) or encoding not in ("latin1", "latin-1"):
+        raise SmplFileError(f"refusing _codecs.encode with codec {_one_line(repr(encoding), 40)}")
+    return text.encode("latin1")
+
+
+def _resolve(module: str, name: str):
+    """The object a pickle asks for, if the allowlist has it; None otherwise."""
+    if module == "chumpy" or module.startswith("chumpy."):
+        return _ChumpyStandIn  # every chumpy class: our stand-in, which runs nothing
+    if (module, name) in _SPARSE_NAMES:
+        return _SPARSE_CLASSES[_SPARSE_NAMES[(module, name)]]
+    if module in ("__builtin__", "builtins") and name in _BUILTIN_NAMES:
+        return {"object": object, "set": set}[name]
+    if module in ("copy_reg", "copyreg") and name == "_reconstructor":
+        return _Sealed(copyreg._reconstructor)
+    if (module, name) == ("_codecs", "encode"):
+        return _Sealed(_latin1_encode)
+    if (module, name) in _NUMPY_NAMES:
+        found = getattr(_numpy_module(module), name)
+        return found if isinstance(found, type) else _Sealed(found)
+    return None
+
+
+def _numpy_module(module: str):
+    """numpy 2 moved numpy.core to numpy._core (the old name warns); files use either spelling."""
+    if module == "numpy":
+        return np
+    new_name = module.replace("numpy.core.", "numpy._core.", 1)
+    try:
+        return importlib.import_module(new_name)
+    except ImportError:  # numpy 1.x
+        return importlib.import_module(new_name.replace("numpy._core.", "numpy.core.", 1))
 
 
 class _SmplUnpickler(pickle.Unpickler):
+    def __init__(self, handle, path: Path) -> None:
+        super().__init__(handle, encoding="latin1")
+        self.path = path
+
     def find_class(self, module: str, name: str):
-        if module.startswith("chumpy"):
-            return _ChumpyStandIn
-        if module.startswith(("numpy", "scipy", "copy_reg", "copyreg", "__builtin__", "builtins", "_codecs")):
-            return super().find_class(module, name)
-        raise SmplFileError(f"refusing to unpickle {module}.{name} from an SMPL file")
+        found = _resolve(module, name)
+        if found is None:
+            raise SmplFileError(f"refusing to load {_one_line(f'{module}.{name}')} from {self.path}: "
+                                "SMPL files hold only arrays")
+        return found
 
 
-def _to_dense(value) -> np.ndarray:
-    if isinstance(value, _ChumpyStandIn):
-        value = np.asarray(value)
-    if hasattr(value, "toarray"):  # scipy sparse
-        value = value.toarray()
-    return np.asarray(value)
+def load_arrays(path: str | Path, skipped: list[str] | None = None) -> dict[str, np.ndarray]:
+    """Read a .pkl (official, chumpy or not), .npz or .npy file into a dict of dense numeric arrays.
 
-
-def load_arrays(path: str | Path) -> dict[str, np.ndarray]:
-    """Read a .pkl (official, chumpy or not) or .npz file into a dict of dense numpy arrays."""
+    A .pkl may hold only what SMPL files hold (see `_resolve`); anything else, e.g. a function to call,
+    is refused with SmplFileError before it runs. Entries that are not numeric arrays (SMPL's
+    `bs_style` string, `pose_training_info` dict...) are left out; their keys are appended to `skipped`.
+    """
     path = Path(path)
     if not path.is_file():
         raise SmplFileError(f"file not found: {path}")
+    raw = _read_raw(path)
+    if not isinstance(raw, dict):
+        raise SmplFileError(f"{path}: expected a mapping of arrays, got {type(raw).__name__}")
+    arrays = {}
+    for key, value in raw.items():
+        if not isinstance(key, str):
+            raise SmplFileError(f"{path}: keys must be strings, got {type(key).__name__}")
+        try:
+            array = _to_dense(value)
+        except SmplFileError as exc:
+            raise SmplFileError(f"{path}: {_one_line(repr(key))}: {exc}") from exc
+        except Exception as exc:  # noqa: BLE001 - a malformed entry is a file problem
+            raise SmplFileError(f"{path}: {_one_line(repr(key))}: cannot read ({_one_line(exc, 200)})") from exc
+        if array is None:
+            if skipped is not None:
+                skipped.append(key)
+        else:
+            arrays[key] = array
+    return arrays
+
+
+def _read_raw(path: Path):
     try:
         if path.suffix == ".npz":
             with np.load(path, allow_pickle=False) as data:
-                raw = {k: data[k] for k in data.files}
-        elif path.suffix in (".pkl", ".pickle"):
+                return {k: data[k] for k in data.files}
+        if path.suffix in (".pkl", ".pickle"):
             with open(path, "rb") as handle:
-                raw = _SmplUnpickler(handle, encoding="latin1").load()
-        elif path.suffix == ".npy":
-            raw = {"array": np.load(path, allow_pickle=False)}
-        else:
-            raise SmplFileError(f"{path}: expected a .pkl, .npz or .npy file")
-    except SmplFileError:
-        raise
+                return _SmplUnpickler(handle, path).load()
+        if path.suffix == ".npy":
+            return {"array": np.load(path, allow_pickle=False)}
+    except SmplFileError as exc:
+        if str(path) in str(exc):
+            raise
+        raise SmplFileError(f"{path}: {exc}") from exc  # raised by a stand-in, which does not know the file
     except Exception as exc:  # noqa: BLE001 - any parse failure is reported as a file problem
-        raise SmplFileError(f"{path}: cannot read ({exc})") from exc
-    if not isinstance(raw, dict):
-        raise SmplFileError(f"{path}: expected a mapping of arrays, got {type(raw).__name__}")
-    return {k: _to_dense(v) for k, v in raw.items() if not isinstance(v, str)}
+        raise SmplFileError(f"{path}: cannot read ({_one_line(exc, 200)})") from exc
+    raise SmplFileError(f"{path}: expected a .pkl, .npz or .npy file")
+
+
+def _to_dense(value) -> np.ndarray | None:
+    """A numeric ndarray, or None for anything else (strings, dicts, object arrays)."""
+    if isinstance(value, _SparseStandIn):
+        value = value.toarray()
+    elif isinstance(value, _ChumpyStandIn):
+        value = np.asarray(value)
+    if not isinstance(value, (np.ndarray, np.generic, int, float)) or isinstance(value, bool):
+        return None
+    array = np.asarray(value)
+    return array if array.dtype.kind in "biuf" else None
 
 
 # -- pure functions of linear blend skinning (smplx's lbs, restated) ------------------------------
