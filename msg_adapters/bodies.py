@@ -199,7 +199,7 @@ def _rotation(value: Any, where: str) -> np.ndarray:
 def _stamp_ns(value: Any) -> int:
     """{sec, nanosec} (exact) or seconds (float: whole and fraction apart, as the writer's stamp_to_ns)."""
     if _is_number(value) and _INT32[0] <= value < _INT32[1] + 1:
-        return stamp_to_ns(value)
+        return stamp_to_ns(float(value))  # a JSON number is seconds (stamp_to_ns reads ints as ns)
     if isinstance(value, dict) and set(value) == {"sec", "nanosec"} and all(
         isinstance(value[k], int) and not isinstance(value[k], bool) for k in value
     ) and 0 <= value["nanosec"] < _NS_PER_S and _INT32[0] <= value["sec"] <= _INT32[1]:

@@ -72,7 +72,7 @@ def wheel(tmp_path_factory) -> zipfile.ZipFile:
 def test_wheel_holds_packages_entry_points_and_share_files(wheel):
     names = set(wheel.namelist())
     assert "smplify3d_ros/node.py" in names and "smplify3d_ros/replay/run.py" in names
-    assert "smplify3d_ros/fitting/pipeline.py" in names and "msg_adapters/pointcloud2.py" in names
+    assert "smplify3d_ros/fitting/fitter.py" in names and "msg_adapters/pointcloud2.py" in names
     assert "msg_adapters/BODIES_SCHEMA.md" in names
     data = f"smplify3d_ros-{smplify3d_ros.__version__}.data/data/"
     share = f"{data}share/{PACKAGE}/"

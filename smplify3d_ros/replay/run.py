@@ -186,15 +186,20 @@ def replay_bag(
             for conn in reader.connections:
                 writer.copy_connection(conn)
         replay = _Replay(reader, processor, writer, summary, png is not None, node_config.diagnostics_period_s)
-        timestamp = None
+        timestamp = last_frame = None
         bar = tqdm(total=reader.message_count, unit="msg", disable=not progress, desc=Path(bag).name,
                    file=sys.stderr)
         try:
             for step in reader:
                 bar.update(1)
                 timestamp = step.timestamp
-                replay.step(step)
-                if max_frames is not None and summary.frames_synced >= max_frames:
+                if max_frames is None or summary.frames_synced < max_frames:
+                    replay.step(step)
+                    last_frame = timestamp
+                elif step.truth is not None:  # past the last frame: only the ground truth it still waits for
+                    replay.scorer.add_truth(step.truth)
+                if max_frames is not None and summary.frames_synced >= max_frames and (
+                        not replay.scorer.waiting or timestamp > last_frame + replay.scorer.window_ns):
                     break
             bar.close()
             replay.finish(timestamp)

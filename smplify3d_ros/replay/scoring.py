@@ -51,6 +51,11 @@ class TruthScorer:
         self._match()
         self._expire(self._results, truth.stamp_ns)
 
+    @property
+    def waiting(self) -> int:
+        """Results still waiting for their ground truth."""
+        return len(self._results)
+
     def finish(self) -> None:
         self._match()
         self._results.clear()
