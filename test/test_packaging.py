@@ -217,7 +217,8 @@ def test_launch_file_loads_with_ros_launch():  # pragma: no cover - needs a full
     description = source.try_get_launch_description_without_context()
     assert isinstance(description, LaunchDescription)
     names = {a.name for a in description.get_launch_arguments()}
-    assert {"params_file", "points", "image", "rviz"} <= names
+    assert {"params_file", "ros_params_file", "namespace", "points", "image", "compressed_image", "camera_info",
+            "keypoints", "rviz"} <= names
 
 
 def test_profiles_load_and_node_yaml_documents_every_key():
