@@ -27,18 +27,119 @@ def test_package_xml_is_format_3_ament_python_with_the_runtime_dependencies():
     assert root.findtext("name") == PACKAGE
     assert root.findtext("version") == smplify3d_ros.__version__
     assert root.find("export/build_type").text == "ament_python"
-    assert root.findtext("buildtool_depend") == "ament_python"
     assert root.findtext("license") and root.findtext("maintainer") and root.findtext("description").strip()
     depends = {e.text for e in root.findall("exec_depend")}
     required = {"rclpy", "std_msgs", "sensor_msgs", "geometry_msgs", "visualization_msgs", "diagnostic_msgs",
-                "builtin_interfaces", "rcl_interfaces", "tf2_ros", "launch_ros", "python3-numpy",
-                "python3-opencv", "python3-yaml", "python3-scipy"}
+                "builtin_interfaces", "rcl_interfaces", "tf2_ros_py", "message_filters", "launch", "launch_ros",
+                "ros2launch", "python3-numpy", "python3-opencv", "python3-yaml", "python3-scipy"}
     assert required <= depends, required - depends
     # every message package the code builds messages from is a dependency
     used = set()
     for path in [*(REPO / "msg_adapters").glob("*.py"), *(REPO / PACKAGE).glob("*.py")]:
         used |= set(re.findall(r'"([a-z_]+_msgs|builtin_interfaces)/(?:msg/)?[A-Z]\w+"', path.read_text()))
     assert used <= depends, used - depends
+
+
+DEPEND_TAGS = ("depend", "build_depend", "build_export_depend", "buildtool_depend", "buildtool_export_depend",
+               "exec_depend", "test_depend", "doc_depend")
+
+
+def _rosdep_keys() -> dict:
+    return yaml.safe_load((REPO / "test" / "data" / "rosdep_keys_jazzy.yaml").read_text())
+
+
+def _package_xml_depends() -> list[tuple[str, str]]:
+    root = ET.parse(REPO / "package.xml").getroot()
+    return [(e.tag, (e.text or "").strip()) for e in root if e.tag in DEPEND_TAGS]
+
+
+def test_package_xml_uses_only_verified_rosdep_keys():
+    """Every dependency is a key checked against rosdistro (test/data/rosdep_keys_jazzy.yaml), none of them
+    a pip-only key (rosdep's pip installer stops on Ubuntu 24.04's externally managed Python)."""
+    verified = _rosdep_keys()
+    keys, absent = verified["keys"], verified["absent"]
+    depends = _package_xml_depends()
+    assert depends
+    unknown = sorted({key for _, key in depends if key not in keys})
+    assert not unknown, f"not in test/data/rosdep_keys_jazzy.yaml (check rosdistro, then add): {unknown}"
+    assert not [key for _, key in depends if key in absent]
+    pip_only = sorted({key for _, key in depends if keys[key].get("installer") == "pip"})
+    assert not pip_only, f"pip-only rosdep keys fail on Noble; use requirements-robot.txt: {pip_only}"
+    assert "tf2_ros" not in {key for _, key in depends}, "the Python tf2_ros module is in tf2_ros_py"
+
+
+def test_package_xml_buildtool_depends_are_released_jazzy_packages():
+    """ament_python is a build type, not a rosdep key: `rosdep install` stops on it."""
+    keys = _rosdep_keys()["keys"]
+    tools = [key for tag, key in _package_xml_depends() if tag.startswith("buildtool")]
+    bad = [key for key in tools if keys.get(key, {}).get("kind") != "ros"]
+    assert not bad, f"buildtool_depend keys that are not released Jazzy packages: {bad}"
+    assert "ament_python" not in tools
+
+
+def test_verified_rosdep_key_list_names_its_sources():
+    verified = _rosdep_keys()
+    sources = verified["sources"]
+    assert set(sources) == {"jazzy/distribution.yaml", "rosdep/python.yaml"}
+    assert all(len(commit) == 40 for commit in sources.values())
+    for key, entry in verified["keys"].items():
+        assert entry["file"] in sources, key
+        if entry["kind"] == "ros":
+            assert entry["file"] == "jazzy/distribution.yaml" and entry["repository"] and entry["release"], key
+        else:
+            assert entry["kind"] == "system" and entry["installer"] in ("apt", "pip") and entry["noble"], key
+    assert not set(verified["keys"]) & set(verified["absent"])
+    assert {"ament_python", "hri_msgs"} <= set(verified["absent"])
+
+
+# setup.py install_requires names provided by apt through a rosdep key of package.xml on the robot
+APT_PROVIDED = {"numpy": "python3-numpy", "scipy": "python3-scipy", "PyYAML": "python3-yaml",
+                "opencv-python-headless": "python3-opencv", "tqdm": "python3-tqdm",
+                "matplotlib": "python3-matplotlib"}
+APT_OWNED = {"numpy", "scipy", "pyyaml", "opencv-python", "opencv-python-headless", "opencv-contrib-python",
+             "opencv-contrib-python-headless", "tqdm", "matplotlib"}
+
+
+def _requirement_names(path: Path) -> dict[str, str]:
+    names = {}
+    for line in path.read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line and not line.startswith("-"):
+            names[re.split(r"[<>=!~;\[ ]", line, maxsplit=1)[0].lower()] = line
+    return names
+
+
+def _install_requires() -> list[str]:
+    tree = ast.parse((REPO / "setup.py").read_text())
+    call = next(n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "setup")
+    (value,) = [k.value for k in call.keywords if k.arg == "install_requires"]
+    return [re.split(r"[<>=!~;\[ ]", r, maxsplit=1)[0] for r in ast.literal_eval(value)]
+
+
+def test_robot_requirements_leave_ros_and_apt_packages_alone():
+    robot = _requirement_names(REPO / "requirements-robot.txt")
+    assert robot
+    assert not [name for name in robot if name.startswith("ros-")], "ROS comes from apt on the robot"
+    assert not set(robot) & APT_OWNED, "pip copies of apt's python3-* packages break the apt modules"
+    assert all(not re.search(r"==", spec) for spec in robot.values()), "no exact pins on the robot"
+    text = (REPO / "requirements-robot.txt").read_text()
+    assert "--index-url https://download.pytorch.org/whl/cpu" in text  # torch's CPU build, documented
+
+
+def test_robot_install_covers_every_runtime_requirement():
+    """Each install_requires entry of setup.py comes from rosdep (package.xml) or requirements-robot.txt."""
+    robot = set(_requirement_names(REPO / "requirements-robot.txt"))
+    depends = {key for _, key in _package_xml_depends()}
+    missing = []
+    for name in _install_requires():
+        if name == "setuptools":
+            continue  # the build tool itself: in every venv, and python3-setuptools with colcon
+        if name in APT_PROVIDED:
+            if APT_PROVIDED[name] not in depends:
+                missing.append(f"{name} (rosdep key {APT_PROVIDED[name]})")
+        elif name.lower() not in robot:
+            missing.append(f"{name} (requirements-robot.txt)")
+    assert not missing, missing
 
 
 def test_setup_py_declares_entry_points_packages_and_data():
@@ -117,7 +218,8 @@ def test_launch_file_loads_with_ros_launch():  # pragma: no cover - needs a full
     description = source.try_get_launch_description_without_context()
     assert isinstance(description, LaunchDescription)
     names = {a.name for a in description.get_launch_arguments()}
-    assert {"params_file", "points", "image", "rviz"} <= names
+    assert {"params_file", "ros_params_file", "namespace", "points", "image", "compressed_image", "camera_info",
+            "keypoints", "rviz"} <= names
 
 
 def test_profiles_load_and_node_yaml_documents_every_key():
@@ -142,9 +244,10 @@ def test_profiles_load_and_node_yaml_documents_every_key():
     assert not undocumented, undocumented
 
 
-def test_rviz_config_shows_the_outputs():
+def test_rviz_template_shows_the_outputs():
+    """The RViz view is a YAML template; the launch file fills its placeholders (test_launch.py)."""
     rviz = yaml.safe_load((REPO / "rviz" / "smplify3d.rviz").read_text())
     displays = rviz["Visualization Manager"]["Displays"]
     topics = {d["Topic"]["Value"] for d in displays if isinstance(d.get("Topic"), dict)}
-    assert {"/smplify3d/markers", "/smplify3d/joints", "/smplify3d/people", "/smplify3d/body_points"} <= topics
-    assert rviz["Visualization Manager"]["Global Options"]["Fixed Frame"] == "camera_color_optical_frame"
+    assert {"${markers}", "${joints}", "${people}", "${body_points}", "${points}", "${image}"} <= topics
+    assert rviz["Visualization Manager"]["Global Options"]["Fixed Frame"] == "${fixed_frame}"
