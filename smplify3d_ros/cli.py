@@ -39,25 +39,35 @@ def _setup(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser; only `command`'s module is imported, to add its arguments (so that `--help` of the
+    command line, or of one subcommand, never imports the others: some load torch)."""
     parser = argparse.ArgumentParser(prog="smplify3d", description=__doc__.split("\n\n")[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
     setup = sub.add_parser("setup", help="build the body model cache once (run at install time)")
-    setup.add_argument("--params", help="params profile or YAML file (default: jackal_vlp16)")
+    setup.add_argument("--params", metavar="PROFILE", help="params profile or YAML file (default: jackal_vlp16)")
     setup.set_defaults(func=_setup)
     for name, (module_name, help_text) in COMMANDS.items():
-        command = sub.add_parser(name, help=help_text)
-        command.set_defaults(module=module_name)
+        subcommand = sub.add_parser(name, help=help_text)
+        subcommand.set_defaults(module=module_name)
+        if name != command:
+            continue
         try:
-            importlib.import_module(module_name).add_arguments(command)
+            importlib.import_module(module_name).add_arguments(subcommand)
         except ImportError as exc:  # keep the other commands usable, say what is missing
-            command.set_defaults(missing=str(exc))
+            subcommand.set_defaults(missing=str(exc))
     return parser
 
 
+def _command(argv: list[str]) -> str | None:
+    """The subcommand named on the command line (the first word that is one)."""
+    return next((word for word in argv if word in COMMANDS), None)
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(_command(argv)).parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     if hasattr(args, "func"):

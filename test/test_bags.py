@@ -21,7 +21,6 @@ from msg_adapters import (  # noqa: E402
 )
 from msg_adapters.pointcloud2 import FLOAT32, UINT16  # noqa: E402
 from smplify3d_ros.camera import project_points, transform_points  # noqa: E402
-from smplify3d_ros.sim.config import default_sim_config  # noqa: E402
 from smplify3d_ros.sim.bags import (  # noqa: E402
     BAGS,
     BAGS_DIR,
@@ -33,6 +32,7 @@ from smplify3d_ros.sim.bags import (  # noqa: E402
     bag_size,
     read_ground_truth,
 )
+from smplify3d_ros.sim.config import default_sim_config  # noqa: E402
 
 SPECS = {spec.name: spec for spec in BAGS}
 PRESENT = [spec.name for spec in BAGS if (BAGS_DIR / spec.name / "metadata.yaml").exists()]

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from smplify3d_ros.camera import project_points, transform_points
-from smplify3d_ros.settings import ConfigError, base_values, from_dict
 from smplify3d_ros.keypoints import KP
 from smplify3d_ros.lidar.config import ExtractionConfig
 from smplify3d_ros.lidar.extract import extract_people
+from smplify3d_ros.settings import ConfigError, base_values, from_dict
 from smplify3d_ros.types import CameraModel
 
 LIDAR_HEIGHT = 0.55  # m above the floor (the simulator's Jackal mount)

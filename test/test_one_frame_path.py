@@ -10,7 +10,6 @@ from pathlib import Path
 
 import node_support
 import pytest
-
 from test_node_replay import publish_bag_at_recorded_timing
 
 FAKES = Path(__file__).resolve().parent / "fakes"

@@ -2,8 +2,21 @@
 
 from __future__ import annotations
 
-from smplify3d_ros.body.base import BodyModel, BodyOutput
+from typing import TYPE_CHECKING, Any
+
 from smplify3d_ros.body.joints import BODY_JOINTS
+
+if TYPE_CHECKING:
+    from smplify3d_ros.body.base import BodyModel, BodyOutput
+
+
+def __getattr__(name: str) -> Any:
+    """`BodyModel`, `BodyOutput` on first use: they import torch, which `smpl-to-npz --help` need not."""
+    if name in ("BodyModel", "BodyOutput"):
+        from smplify3d_ros.body import base
+
+        return getattr(base, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = ["BODY_JOINTS", "BodyModel", "BodyOutput", "load_body_model"]
 

@@ -16,8 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from smplify3d_ros.body.smpl_model import SmplFileError, load_arrays
-
 PICKLE_SUFFIXES = (".pkl", ".pickle")
 _SAVEZ_ARGUMENTS = ("file", "allow_pickle")  # np.savez's own parameter names cannot be array keys
 
@@ -38,6 +36,8 @@ def convert(source: str | Path, output: str | Path | None = None, force: bool = 
         raise ConvertError(f"{target} exists (--force replaces it)")
     if not target.parent.is_dir():
         raise ConvertError(f"{target.parent}: no such directory")
+    from smplify3d_ros.body.smpl_model import load_arrays  # torch with it: not at import (fast --help)
+
     skipped: list[str] = []
     arrays = load_arrays(source, skipped)
     clash = sorted(set(arrays) & set(_SAVEZ_ARGUMENTS))
@@ -74,6 +74,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """0 on success, 2 for an unusable input or output (one line on stderr)."""
+    from smplify3d_ros.body.smpl_model import SmplFileError
+
     try:
         target, skipped = convert(args.pkl, args.output, args.force)
     except (ConvertError, SmplFileError) as exc:

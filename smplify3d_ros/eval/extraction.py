@@ -19,12 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from smplify3d_ros.config import load_config
-from smplify3d_ros.frame_fitter import extract_frame_people
 from smplify3d_ros.keypoints import HIP_INDICES
 from smplify3d_ros.lidar.config import ExtractionConfig
-from smplify3d_ros.sim.config import SimConfig, load_sim_config
-from smplify3d_ros.sim.world import simulate_scene
+from smplify3d_ros.sim.config import SimConfig
 
 TARGET_DISTANCE_M = (2.0, 12.0)  # the target set: people at these distances ...
 TARGET_VISIBLE = 0.5  # ... at least this visible
@@ -62,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def evaluate_scene(seed: int, sim_config: SimConfig, config: ExtractionConfig, sensor: str) -> tuple[list[Case], float]:
     """Cases of one simulated scene and the extraction time (s)."""
+    from smplify3d_ros.frame_fitter import extract_frame_people  # torch and trimesh: not at import
+    from smplify3d_ros.sim.world import simulate_scene
+
     sim = simulate_scene(seed, sim_config, sensor=sensor)
     frame = sim.frame
     start = time.perf_counter()
@@ -126,6 +126,9 @@ def print_report(cases: list[Case], timing_ms: float) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from smplify3d_ros.config import load_config
+    from smplify3d_ros.sim.config import load_sim_config
+
     lidar, sim = load_config(args.params).lidar, load_sim_config(args.params)
     cases: list[Case] = []
     times = []

@@ -271,6 +271,43 @@ def _grow(
     return joined
 
 
+@dataclass
+class _Geometry:
+    """Where each candidate point lies relative to each person's skeleton, (P, M) arrays."""
+
+    box: np.ndarray  # in the person's padded keypoint bbox
+    context: np.ndarray  # around the bbox, not in it
+    box_fraction: np.ndarray  # (P,) bbox area / context area
+    dist: np.ndarray  # metres beside the skeleton, at the point's depth (inf outside the bbox)
+    part: np.ndarray  # body part of the nearest segment
+    sure: np.ndarray  # the nearest segment is confident enough to refute
+    extent: np.ndarray  # (P,) the skeleton's extent
+
+
+def _geometry(uv: np.ndarray, z: np.ndarray, skeletons: list[Skeleton | None], camera: CameraModel,
+              config: ExtractionConfig) -> _Geometry:
+    n_people, n_points = len(skeletons), len(uv)
+    xy = to_normalized(uv, camera)
+    g = _Geometry(
+        box=np.zeros((n_people, n_points), dtype=bool), context=np.zeros((n_people, n_points), dtype=bool),
+        box_fraction=np.zeros(n_people), dist=np.full((n_people, n_points), np.inf),
+        part=np.zeros((n_people, n_points), dtype=np.int64), sure=np.zeros((n_people, n_points), dtype=bool),
+        extent=np.full(n_people, np.nan),
+    )
+    for k, skeleton in enumerate(skeletons):
+        if skeleton is None:
+            continue
+        box = g.box[k] = in_bbox(uv, skeleton.bbox)
+        g.context[k] = in_bbox(uv, skeleton.context) & ~box
+        g.box_fraction[k] = _area(skeleton.bbox) / max(_area(skeleton.context), 1e-9)
+        d, nearest = segment_distance(xy[box], skeleton)
+        g.dist[k, box] = d * z[box]
+        g.part[k, box] = skeleton.parts[nearest]
+        g.sure[k, box] = skeleton.scores[nearest] >= config.refute_min_score
+        g.extent[k] = skeleton.extent
+    return g
+
+
 def associate(
     points: np.ndarray, uv: np.ndarray, coords: np.ndarray, clusters: np.ndarray,
     skeletons: list[Skeleton | None], camera: CameraModel, config: ExtractionConfig,
@@ -281,32 +318,31 @@ def associate(
     coords: (M, 3) their clustering-space coordinates (`cluster.scaled_coordinates`); clusters: (M,)
     cluster labels 0..C-1; skeletons: one per person, None for people without one.
     """
-    n_people, n_points = len(skeletons), len(points)
-    owner = np.full(n_points, -1, dtype=np.int64)
-    if n_points == 0 or n_people == 0:
+    owner = np.full(len(points), -1, dtype=np.int64)
+    if len(points) == 0 or len(skeletons) == 0:
         return owner
-    n_clusters, n_parts = int(clusters.max()) + 1, len(BODY_PARTS)
     z = points[:, 2].astype(np.float64)
-    xy = to_normalized(uv, camera)
-    box = np.zeros((n_people, n_points), dtype=bool)
-    context = np.zeros((n_people, n_points), dtype=bool)  # around the bbox, not in it
-    box_fraction = np.zeros(n_people)
-    dist = np.full((n_people, n_points), np.inf)  # metres beside the skeleton, at the point's depth
-    part = np.zeros((n_people, n_points), dtype=np.int64)  # body part of the nearest segment
-    sure = np.zeros((n_people, n_points), dtype=bool)  # the nearest segment is confident enough to refute
-    extent = np.full(n_people, np.nan)
-    for k, skeleton in enumerate(skeletons):
-        if skeleton is None:
-            continue
-        box[k] = in_bbox(uv, skeleton.bbox)
-        context[k] = in_bbox(uv, skeleton.context) & ~box[k]
-        box_fraction[k] = _area(skeleton.bbox) / max(_area(skeleton.context), 1e-9)
-        d, nearest = segment_distance(xy[box[k]], skeleton)
-        dist[k, box[k]] = d * z[box[k]]
-        part[k, box[k]] = skeleton.parts[nearest]
-        sure[k, box[k]] = skeleton.scores[nearest] >= config.refute_min_score
-        extent[k] = skeleton.extent
-    mask = dist <= config.mask_radius_m
+    g = _geometry(uv, z, skeletons, camera, config)
+    mask = g.dist <= config.mask_radius_m
+    main, body_like, depth = _score_clusters(g, mask, z, clusters, skeletons, camera, config)
+    chosen, reference = _body_clusters(main, body_like, depth, g.box, coords, clusters, config)
+    with np.errstate(invalid="ignore"):
+        in_window = np.abs(z[None, :] - reference[:, None]) <= config.body_depth_window_m
+    eligible = mask & in_window & np.take_along_axis(chosen, np.broadcast_to(clusters, mask.shape), axis=1)
+    dist = np.where(eligible, g.dist, np.inf)
+    nearest = np.argmin(dist, axis=0)
+    has_owner = np.isfinite(dist[nearest, np.arange(len(points))])
+    owner[has_owner] = nearest[has_owner]
+    return owner
+
+
+def _score_clusters(
+    g: _Geometry, mask: np.ndarray, z: np.ndarray, clusters: np.ndarray, skeletons: list[Skeleton | None],
+    camera: CameraModel, config: ExtractionConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each person's main cluster (-1: none), which clusters look like a body, and each (person, cluster)
+    pair's median depth."""
+    n_people, n_clusters, n_parts = len(skeletons), int(clusters.max()) + 1, len(BODY_PARTS)
     exclusive = mask & (mask.sum(axis=0) == 1)
     group = np.arange(n_people)[:, None] * n_clusters + clusters[None, :]  # (P, M) person-cluster id
     size = n_people * n_clusters
@@ -315,7 +351,7 @@ def associate(
         return np.bincount(group[selection], minlength=size).reshape(n_people, n_clusters)
 
     def parts_with(selection: np.ndarray) -> np.ndarray:  # (P, C, parts) bool: part has such points
-        ids = group[selection] * n_parts + part[selection]
+        ids = group[selection] * n_parts + g.part[selection]
         return np.bincount(ids, minlength=size * n_parts).reshape(n_people, n_clusters, n_parts) > 0
 
     parts_excl, parts_any = parts_with(exclusive), parts_with(mask)
@@ -323,8 +359,8 @@ def associate(
     depth = _grouped_median(group[mask], np.broadcast_to(z, mask.shape)[mask], size).reshape(
         n_people, n_clusters
     )
-    core = mask & (dist <= config.core_radius_m) & sure
-    own_core = np.bincount(group[core] * n_parts + part[core], minlength=size * n_parts).reshape(
+    core = mask & (g.dist <= config.core_radius_m) & g.sure
+    own_core = np.bincount(group[core] * n_parts + g.part[core], minlength=size * n_parts).reshape(
         n_people, n_clusters, n_parts
     )
     contradicted = np.zeros((n_people, n_clusters))
@@ -334,17 +370,25 @@ def associate(
         if len(hypotheses) == 0:
             continue
         contradicted[k, hypotheses] = _contradicted_parts(
-            z[core[k]], clusters[core[k]], part[k, core[k]], hypotheses, depth[k, hypotheses],
+            z[core[k]], clusters[core[k]], g.part[k, core[k]], hypotheses, depth[k, hypotheses],
             own_core[k, hypotheses], config,
         )
         fraction[k, hypotheses] = mask_fraction(skeletons[k], depth[k, hypotheses], camera, config)
-    counts = {"in_box": count(box), "in_context": count(context), "in_mask": count(mask),
+    counts = {"in_box": count(g.box), "in_context": count(g.context), "in_mask": count(mask),
               "exclusive": count(exclusive)}
     main, body_like = _main_clusters(
-        counts, coverage, contradicted, fraction, box_fraction, depth, extent, config
+        counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent, config
     )
-    chosen = np.zeros((n_people, n_clusters), dtype=bool)
-    reference = np.full(n_people, np.nan)
+    return main, body_like, depth
+
+
+def _body_clusters(
+    main: np.ndarray, body_like: np.ndarray, depth: np.ndarray, box: np.ndarray, coords: np.ndarray,
+    clusters: np.ndarray, config: ExtractionConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(P, C) the clusters that make each person's body, and each person's reference depth (NaN: none)."""
+    chosen = np.zeros(body_like.shape, dtype=bool)
+    reference = np.full(len(main), np.nan)
     for k in np.flatnonzero(main >= 0):
         reference[k] = depth[k, main[k]]
         with np.errstate(invalid="ignore"):
@@ -355,11 +399,4 @@ def associate(
         level = np.abs(depth[k, candidates] - reference[k]) <= config.depth_tolerance_m
         seeds = [int(main[k])] + candidates[level].tolist()
         chosen[k, _grow(seeds, candidates, coords[box[k]], clusters[box[k]], config)] = True
-    with np.errstate(invalid="ignore"):
-        in_window = np.abs(z[None, :] - reference[:, None]) <= config.body_depth_window_m
-    eligible = mask & in_window & np.take_along_axis(chosen, np.broadcast_to(clusters, mask.shape), axis=1)
-    dist = np.where(eligible, dist, np.inf)
-    nearest = np.argmin(dist, axis=0)
-    has_owner = np.isfinite(dist[nearest, np.arange(n_points)])
-    owner[has_owner] = nearest[has_owner]
-    return owner
+    return chosen, reference

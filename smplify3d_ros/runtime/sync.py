@@ -47,11 +47,9 @@ class SyncStats:
         return self.dropped_overflow + self.dropped_unmatched + self.dropped_duplicate + self.dropped_reset
 
 
-class ApproximateTimeSync:
-    """Match messages of `n_inputs` streams whose stamps lie within `slop_s` of each other.
-
-    `callback(*messages)` receives one message per input, in input order.
-    """
+class _Synchronizer:
+    """What both synchronizers share: `add`, the per-input stamp checks (a repeated stamp is a duplicate,
+    a stamp going back a time reset that clears every queue) and the counters; subclasses match."""
 
     def __init__(
         self,
@@ -68,16 +66,15 @@ class ApproximateTimeSync:
         if queue_size < 1:
             raise ValueError(f"queue_size must be >= 1, got {queue_size}")
         self.n_inputs = n_inputs
+        self.slop_s = slop_s
         self.slop_ns = round(slop_s * 1e9)
         self.queue_size = queue_size
         self.callback = callback
         self.stamp_ns = stamp_ns
-        self._queues: list[deque[tuple[int, Any]]] = [deque() for _ in range(n_inputs)]
         self._last: list[int | None] = [None] * n_inputs
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()
         self.stats = SyncStats(received=[0] * n_inputs)
 
-    # -- public --------------------------------------------------------------------------------------
     def add(self, index: int, msg: Any, stamp_ns: int | None = None) -> bool:
         """Offer one message of input `index`; returns True when it completed a set (callback called)."""
         if not 0 <= index < self.n_inputs:
@@ -90,38 +87,62 @@ class ApproximateTimeSync:
             return True
         return False
 
+    def reset(self) -> None:
+        """Forget every queued message (counted as reset drops) and the last stamps."""
+        with self._lock:
+            self.stats.dropped_reset += sum(self.queue_lengths())
+            self._clear()
+            self._last = [None] * self.n_inputs
+
+    def _add_locked(self, index: int, msg: Any, stamp: int) -> list[Any] | None:
+        self.stats.received[index] += 1
+        last = self._last[index]
+        if last is not None and stamp < last:
+            self.stats.time_resets += 1
+            self.reset()
+        elif last is not None and stamp == last:
+            self.stats.dropped_duplicate += 1
+            return None
+        self._last[index] = stamp
+        matched = self._match(index, msg, stamp)
+        if matched is not None:
+            self.stats.matched += 1
+        return matched
+
+    # -- the policy ----------------------------------------------------------------------------------
+    def queue_lengths(self) -> list[int]:
+        raise NotImplementedError
+
+    def _clear(self) -> None:
+        raise NotImplementedError
+
+    def _match(self, index: int, msg: Any, stamp: int) -> list[Any] | None:
+        """Queue the message; the set it completes, in input order, or None."""
+        raise NotImplementedError
+
+
+class ApproximateTimeSync(_Synchronizer):
+    """Match messages of `n_inputs` streams whose stamps lie within `slop_s` of each other (the package's
+    own policy, module docstring). `callback(*messages)` receives one message per input, in input order."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._queues: list[deque[tuple[int, Any]]] = [deque() for _ in range(self.n_inputs)]
+
     def queue_lengths(self) -> list[int]:
         with self._lock:
             return [len(q) for q in self._queues]
 
-    def reset(self) -> None:
-        """Forget every queued message (counted as reset drops) and the last stamps."""
-        with self._lock:
-            self._reset_locked()
-
-    # -- internals -----------------------------------------------------------------------------------
-    def _reset_locked(self) -> None:
-        self.stats.dropped_reset += sum(len(q) for q in self._queues)
+    def _clear(self) -> None:
         for q in self._queues:
             q.clear()
-        self._last = [None] * self.n_inputs
 
-    def _add_locked(self, index: int, msg: Any, stamp: int) -> list[Any] | None:
-        stats = self.stats
-        stats.received[index] += 1
-        last = self._last[index]
-        if last is not None and stamp < last:
-            stats.time_resets += 1
-            self._reset_locked()
-        elif last is not None and stamp == last:
-            stats.dropped_duplicate += 1
-            return None
-        self._last[index] = stamp
+    def _match(self, index: int, msg: Any, stamp: int) -> list[Any] | None:
         queue = self._queues[index]
         queue.append((stamp, msg))
         if len(queue) > self.queue_size:
             queue.popleft()
-            stats.dropped_overflow += 1
+            self.stats.dropped_overflow += 1
         picks = self._nearest(index, stamp)
         if picks is None:
             return None
@@ -133,9 +154,8 @@ class ApproximateTimeSync:
             q = self._queues[i]
             for _ in range(k):  # older than the emitted set: can never match again
                 q.popleft()
-                stats.dropped_unmatched += 1
+                self.stats.dropped_unmatched += 1
             out.append(q.popleft()[1])
-        stats.matched += 1
         return out
 
     def _nearest(self, index: int, stamp: int) -> list[int] | None:
@@ -151,7 +171,6 @@ class ApproximateTimeSync:
         return picks
 
 
-
 class Synchronizer(Protocol):
     stats: SyncStats
 
@@ -159,30 +178,19 @@ class Synchronizer(Protocol):
 
     def reset(self) -> None: ...
 
+    def queue_lengths(self) -> list[int]: ...
 
-class MessageFiltersSync:
+
+class MessageFiltersSync(_Synchronizer):
     """message_filters' approximate-time synchronizer with `ApproximateTimeSync`'s interface (module
     docstring). Each input is a `message_filters.SimpleFilter` fed by `add`; the synchronizer's queues
     (a dict of stamps per input, the smallest evicted beyond `queue_size`) are mirrored to count drops."""
 
-    def __init__(
-        self,
-        n_inputs: int,
-        slop_s: float,
-        queue_size: int,
-        callback: Callable[..., None],
-        stamp_ns: Callable[[Any], int] = header_stamp_ns,
-    ) -> None:
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
         import message_filters
 
+        super().__init__(*args, **kwargs)
         self._mf = message_filters
-        self.n_inputs = n_inputs
-        self.slop_s = slop_s
-        self.queue_size = queue_size
-        self.callback = callback
-        self.stamp_ns = stamp_ns
-        self.stats = SyncStats(received=[0] * n_inputs)
-        self._lock = threading.RLock()
         self._emitted: list[Any] | None = None
         self._build()
 
@@ -191,57 +199,29 @@ class MessageFiltersSync:
         self._sync = self._mf.ApproximateTimeSynchronizer(self._filters, self.queue_size, self.slop_s)
         self._sync.registerCallback(self._on_set)
         self._queued: list[set[int]] = [set() for _ in range(self.n_inputs)]
-        self._last: list[int | None] = [None] * self.n_inputs
 
     def _on_set(self, *msgs: Any) -> None:
         self._emitted = list(msgs)
-
-    def add(self, index: int, msg: Any, stamp_ns: int | None = None) -> bool:
-        if not 0 <= index < self.n_inputs:
-            raise IndexError(f"input {index} out of range (0..{self.n_inputs - 1})")
-        stamp = self.stamp_ns(msg) if stamp_ns is None else int(stamp_ns)
-        with self._lock:
-            matched = self._add_locked(index, msg, stamp)
-        if matched is not None:
-            self.callback(*matched)
-            return True
-        return False
-
-    def _add_locked(self, index: int, msg: Any, stamp: int) -> list[Any] | None:
-        stats = self.stats
-        stats.received[index] += 1
-        last = self._last[index]
-        if last is not None and stamp < last:
-            stats.time_resets += 1
-            self.reset()
-        elif last is not None and stamp == last:
-            stats.dropped_duplicate += 1
-            return None
-        self._last[index] = stamp
-        queue = self._queued[index]
-        queue.add(stamp)
-        if len(queue) > self.queue_size:
-            queue.discard(min(queue))
-            stats.dropped_overflow += 1
-        self._emitted = None
-        self._filters[index].signalMessage(msg)
-        matched, self._emitted = self._emitted, None
-        if matched is None:
-            return None
-        for i, m in enumerate(matched):
-            self._queued[i].discard(self.stamp_ns(m))
-        stats.matched += 1
-        return matched
 
     def queue_lengths(self) -> list[int]:
         with self._lock:
             return [len(q) for q in self._queued]
 
-    def reset(self) -> None:
-        """Forget every queued message (counted as reset drops): a new message_filters synchronizer."""
-        with self._lock:
-            self.stats.dropped_reset += sum(len(q) for q in self._queued)
-            self._build()
+    def _clear(self) -> None:
+        self._build()  # a new message_filters synchronizer: its queues cannot be cleared from outside
+
+    def _match(self, index: int, msg: Any, stamp: int) -> list[Any] | None:
+        queue = self._queued[index]
+        queue.add(stamp)
+        if len(queue) > self.queue_size:
+            queue.discard(min(queue))
+            self.stats.dropped_overflow += 1
+        self._emitted = None
+        self._filters[index].signalMessage(msg)
+        matched, self._emitted = self._emitted, None
+        for i, m in enumerate(matched or ()):
+            self._queued[i].discard(self.stamp_ns(m))
+        return matched
 
 
 def make_synchronizer(
