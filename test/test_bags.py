@@ -36,7 +36,8 @@ from smplify3d_ros.sim.config import default_sim_config  # noqa: E402
 
 SPECS = {spec.name: spec for spec in BAGS}
 PRESENT = [spec.name for spec in BAGS if (BAGS_DIR / spec.name / "metadata.yaml").exists()]
-pytestmark = pytest.mark.skipif(not PRESENT, reason="no bags in bags/ (run `smplify3d make-bags`)")
+pytestmark = [pytest.mark.bags,
+              pytest.mark.skipif(not PRESENT, reason="no bags in bags/ (run `smplify3d make-bags`)")]
 
 
 @pytest.fixture(scope="module")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from smplify3d_ros.body.joints import JOINT_INDEX
 from smplify3d_ros.camera import project_points
@@ -26,23 +25,15 @@ def hmr_statistics(model, cfg: SimConfig, n: int = 100, seed: int = 0) -> dict[s
     hips = (JOINT_INDEX["left_hip"], JOINT_INDEX["right_hip"])
     rows = []
     batch = 8
-    dtype = torch.get_default_dtype()
     while len(rows) < n:
         _, people = random_people(rng, cfg, model, batch, cfg.hmr.calibration_distance_m)
         gt = [(p.params, p.joints.astype(np.float64)) for p in people]
         est = simulate_hmr(rng, model, gt, cfg.hmr)
-        with torch.no_grad():
-            out = model(
-                *(
-                    torch.as_tensor(np.stack([getattr(e, f) for e in est]), dtype=dtype)
-                    for f in ("shape", "pose", "root_orient", "transl")
-                )
-            )
-        for k, person in enumerate(people):
-            pj, pv = out.joints[k].double().numpy(), out.vertices[k].double().numpy()
+        for k, (person, body) in enumerate(zip(people, model.posed(est), strict=True)):
+            pj, pv = body.joints, body.vertices
             gj, gv = person.joints.astype(np.float64), person.vertices.astype(np.float64)
             offset = gj[list(hips)].mean(0) - pj[list(hips)].mean(0)
-            uv_p = project_points(out.keypoints[k].double().numpy(), camera)
+            uv_p = project_points(body.keypoints3d, camera)
             uv_g = project_points(person.keypoints3d, camera)
             rows.append(
                 [
