@@ -4,7 +4,8 @@
 YAML path) and `overrides`, and validates the core sections:
 - `fitting` (`fitting.config.FittingConfig`): the body model and the method;
 - `lidar` (`lidar.config.ExtractionConfig`): person points from full scans;
-- `people` (`PeopleConfig`): which detected people a frame fits.
+- `people` (`PeopleConfig`): which detected people a frame fits;
+- `tracking` (`tracking.config.TrackingConfig`): people followed across frames.
 The drivers' section (`node`, `runtime.config`) and the simulator's (`sim`, `sim.config`) are loaded by
 their owners from the same profile; this module imports neither, nor any ROS or message code.
 """
@@ -28,6 +29,7 @@ from smplify3d_ros.settings import (  # noqa: F401 - re-exported: the configurat
     resolve_profile,
     to_dict,
 )
+from smplify3d_ros.tracking.config import TrackingConfig
 
 
 @dataclass(frozen=True)
@@ -51,9 +53,11 @@ class Config:
     fitting: FittingConfig
     lidar: ExtractionConfig
     people: PeopleConfig
+    tracking: TrackingConfig
 
 
-CORE_SECTIONS: dict[str, type] = {"fitting": FittingConfig, "lidar": ExtractionConfig, "people": PeopleConfig}
+CORE_SECTIONS: dict[str, type] = {"fitting": FittingConfig, "lidar": ExtractionConfig, "people": PeopleConfig,
+                                  "tracking": TrackingConfig}
 
 
 def load_config(profile: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:

@@ -1,0 +1,34 @@
+"""Tracking parameters (values and their meaning in params/base/tracking.yaml)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from smplify3d_ros.settings import require
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    enabled: bool  # track people across frames (False: every frame fitted from scratch)
+    gate_m: float  # largest distance between a track's predicted pelvis and an anonymous detection's
+    gate_speed_mps: float  # the gate grows by this speed times the time since the track was seen
+    iou_weight: float  # weight of (1 - 2D box overlap) in the association cost, in metres
+    max_unseen_s: float  # a track not seen for this long ends; an id that returns then starts fresh
+    shape_frames: int  # frames whose shapes are averaged (weighted by their LiDAR points), then held
+    shape_rate: float  # after that, weight of each new frame's shape in the held shape (0: held)
+    accel_sigma_mps2: float  # the constant-velocity filter's process noise: unmodelled acceleration
+    position_sigma_m: float  # the filter's measurement noise: the fitted pelvis position
+    warm_start: bool  # fit tracked people from their predicted last fit with the short warm solve
+    lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of its box height) is lost
+    lost_chamfer_m: float  # ... or whose mesh is farther than this from its points
+
+    def __post_init__(self) -> None:
+        require(self.gate_m > 0 and self.gate_speed_mps >= 0, "gate_m must be > 0, gate_speed_mps >= 0")
+        require(self.iou_weight >= 0, "iou_weight must be >= 0")
+        require(self.max_unseen_s > 0, "max_unseen_s must be > 0")
+        require(self.shape_frames >= 1, "shape_frames must be >= 1")
+        require(0.0 <= self.shape_rate <= 1.0, "shape_rate must be in [0, 1]")
+        require(self.accel_sigma_mps2 > 0 and self.position_sigma_m > 0,
+                "accel_sigma_mps2 and position_sigma_m must be > 0")
+        require(self.lost_reprojection > 0 and self.lost_chamfer_m > 0,
+                "lost_reprojection and lost_chamfer_m must be > 0")

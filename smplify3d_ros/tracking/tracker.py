@@ -1,0 +1,176 @@
+"""People tracked across frames: ids, one shape per person, a motion filter, warm starts.
+
+Per frame, `Tracker.assign` gives every observation its track: the detector's track id when the
+keypoints carry one (`person_id >= 0`), else the package's own association (the gated, Hungarian
+assignment of `association.associate`). `Tracker.warm_start` is a tracked person's previous fit moved
+to where the motion filter predicts the pelvis at the new stamp (pose as last seen, the track's held
+shape), for the fitter's short warm solve. `Tracker.update` folds the frame's fits in: the filter's
+velocity goes onto each fit, the shape is averaged over the track's first frames (weighted by their
+LiDAR points) and then held, and tracks not seen for `max_unseen_s` end (an id that comes back starts a
+new track). Everything is in the camera frame, in which the fits are made.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from smplify3d_ros.geometry import move_body, transform
+from smplify3d_ros.keypoints import HIP_INDICES
+from smplify3d_ros.tracking.association import associate, box_iou
+from smplify3d_ros.tracking.config import TrackingConfig
+from smplify3d_ros.tracking.motion import MotionFilter
+from smplify3d_ros.types import BodyFit, BodyParams, PersonObservation
+
+_NS = 1e-9
+
+
+def pelvis(fit: BodyFit) -> np.ndarray:
+    """(3,) the hip midpoint of a fit (camera frame)."""
+    return np.asarray(fit.keypoints3d, np.float64)[list(HIP_INDICES)].mean(axis=0)
+
+
+def surface_point(obs: PersonObservation) -> np.ndarray | None:
+    """(3,) the median of a person's LiDAR points, or None without points: where the scan sees them."""
+    return np.median(obs.points, axis=0).astype(np.float64) if len(obs.points) else None
+
+
+@dataclass
+class Track:
+    track_id: int
+    from_detector: bool  # the id is the detector's
+    last_stamp_ns: int
+    motion: MotionFilter
+    bbox: np.ndarray  # (4,) the last keypoint box, px
+    surface: np.ndarray | None  # (3,) the last points' median, camera frame
+    last_fit: BodyFit | None = None
+    frames: int = 0  # frames fitted
+    shape_sum: np.ndarray | None = None
+    shape_weight: float = 0.0
+    shape: np.ndarray | None = None  # the held shape, once `shape_frames` frames are in
+
+    def age_s(self, stamp_ns: int) -> float:
+        return (stamp_ns - self.last_stamp_ns) * _NS
+
+
+@dataclass
+class TrackerStats:
+    tracks_started: int = 0
+    tracks_ended: int = 0
+    fits: Counter = field(default_factory=Counter)  # "warm", "cold", "lost" (warm fits refitted cold)
+
+
+class Tracker:
+    """See the module docstring."""
+
+    def __init__(self, config: TrackingConfig) -> None:
+        self.config = config
+        self.tracks: dict[int, Track] = {}
+        self.stats = TrackerStats()
+        self._next_id = 0  # the package's own ids, for people the detector gives none ...
+        self._own: set[int] = set()  # ... and the ones handed out
+
+    def reset(self) -> None:
+        """Forget every track (a clock reset, e.g. a bag played again)."""
+        self.stats.tracks_ended += len(self.tracks)
+        self.tracks.clear()
+
+    # -- ids -------------------------------------------------------------------------------------------
+    def assign(self, people: list[PersonObservation], stamp_ns: int) -> list[PersonObservation]:
+        """The observations with their track ids (detector ids kept; anonymous people associated)."""
+        self._end_stale(stamp_ns)
+        out = list(people)
+        anonymous = [i for i, p in enumerate(people) if p.person_id < 0]
+        claimed = {p.person_id for p in people if p.person_id >= 0}
+        candidates = [t for t in self.tracks.values() if not t.from_detector and t.track_id not in claimed]
+        matches = associate(candidates, [people[i] for i in anonymous], stamp_ns, self.config)
+        for k, i in enumerate(anonymous):
+            track = matches.get(k)
+            if track is None:
+                while self._next_id in self.tracks or self._next_id in claimed:
+                    self._next_id += 1
+                track_id, self._next_id = self._next_id, self._next_id + 1
+                self._own.add(track_id)
+            else:
+                track_id = track.track_id
+            out[i] = replace(people[i], person_id=track_id)
+        return out
+
+    def _end_stale(self, stamp_ns: int) -> None:
+        for track_id in [t.track_id for t in self.tracks.values() if t.age_s(stamp_ns) > self.config.max_unseen_s]:
+            del self.tracks[track_id]
+            self._own.discard(track_id)
+            self.stats.tracks_ended += 1
+
+    # -- warm starts -----------------------------------------------------------------------------------
+    def track(self, person_id: int) -> Track | None:
+        return self.tracks.get(person_id)
+
+    def warm_start(self, person_id: int, stamp_ns: int) -> BodyParams | None:
+        """The track's last fit moved to the predicted pelvis at `stamp_ns`, with the track's shape."""
+        track = self.tracks.get(person_id)
+        if track is None or track.last_fit is None or not self.config.warm_start:
+            return None
+        fit = track.last_fit
+        shift = track.motion.predicted(track.age_s(stamp_ns)) - pelvis(fit)
+        root, transl, _ = move_body(fit.params.root_orient, fit.params.transl, fit.center, transform(t=shift))
+        shape = track.shape if track.shape is not None else self._mean_shape(track)
+        params = fit.params.copy()
+        params.root_orient, params.transl, params.shape = root, transl, shape.copy()
+        return params
+
+    def held_shape(self, person_id: int) -> np.ndarray | None:
+        """The shape a track holds (None while it is still being estimated)."""
+        track = self.tracks.get(person_id)
+        return None if track is None or track.shape is None else track.shape.copy()
+
+    @staticmethod
+    def _mean_shape(track: Track) -> np.ndarray:
+        return track.shape_sum / max(track.shape_weight, 1e-12)
+
+    # -- after the fit ---------------------------------------------------------------------------------
+    def update(self, fits: list[BodyFit], people: list[PersonObservation], stamp_ns: int) -> list[BodyFit]:
+        """Fold the frame's fits into their tracks; the fits back with their velocity (m/s, camera frame)."""
+        by_id = {p.person_id: p for p in people}
+        out = []
+        for fit in fits:
+            obs = by_id.get(fit.person_id)
+            track = self._track_for(fit, obs, stamp_ns)
+            dt = track.age_s(stamp_ns)
+            track.motion.update(pelvis(fit), dt)
+            track.last_stamp_ns, track.last_fit, track.frames = stamp_ns, fit, track.frames + 1
+            if obs is not None:
+                track.bbox, track.surface = np.asarray(obs.bbox, np.float64), surface_point(obs)
+            self._fold_shape(track, fit)
+            out.append(replace(fit, velocity=track.motion.velocity))
+        return out
+
+    def _track_for(self, fit: BodyFit, obs: PersonObservation | None, stamp_ns: int) -> Track:
+        track = self.tracks.get(fit.person_id)
+        if track is None:
+            cfg = self.config
+            track = self.tracks[fit.person_id] = Track(
+                track_id=fit.person_id, from_detector=fit.person_id not in self._own, last_stamp_ns=stamp_ns,
+                motion=MotionFilter(cfg.accel_sigma_mps2, cfg.position_sigma_m),
+                bbox=np.zeros(4) if obs is None else np.asarray(obs.bbox, np.float64),
+                surface=None if obs is None else surface_point(obs))
+            self.stats.tracks_started += 1
+        return track
+
+    def _fold_shape(self, track: Track, fit: BodyFit) -> None:
+        """Average the shape over the first `shape_frames` fits (weight: LiDAR points + 1), then hold it
+        (moving it by `shape_rate` per frame)."""
+        shape = np.asarray(fit.params.shape, np.float64)
+        if track.shape is not None:
+            track.shape = (1.0 - self.config.shape_rate) * track.shape + self.config.shape_rate * shape
+            return
+        weight = 1.0 + fit.quality.num_points
+        track.shape_sum = weight * shape if track.shape_sum is None else track.shape_sum + weight * shape
+        track.shape_weight += weight
+        if track.frames >= self.config.shape_frames:
+            track.shape = self._mean_shape(track)
+
+
+__all__ = ["Track", "Tracker", "TrackerStats", "box_iou", "pelvis", "surface_point"]

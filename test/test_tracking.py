@@ -1,0 +1,116 @@
+"""Tracks across frames: ids kept through occlusions and crossings, a held shape, velocity, warm starts."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from smplify3d_ros.config import load_config
+from smplify3d_ros.tracking.motion import MotionFilter
+from smplify3d_ros.tracking.tracker import Tracker, pelvis
+from smplify3d_ros.types import BodyFit, BodyParams, FitQuality, PersonObservation
+
+NS = 100_000_000  # 10 Hz
+
+
+def config(**changes):
+    return dataclasses.replace(load_config().tracking, **changes)
+
+
+def observation(pid: int, x: float, z: float = 5.0, n_points: int = 50) -> PersonObservation:
+    """A person whose points sit around (x, 0, z) and whose keypoint box follows x."""
+    rng = np.random.default_rng(int(1000 * x) % 2**31)
+    points = np.array([x, 0.0, z]) + 0.05 * rng.standard_normal((n_points, 3))
+    u = 320.0 + 500.0 * x / z
+    bbox = np.array([u - 30.0, 100.0, u + 30.0, 300.0])
+    return PersonObservation(pid, np.zeros((17, 3)), bbox, points.astype(np.float32))
+
+
+def fit_at(pid: int, x: float, z: float = 5.0, shape=(0.5,) * 6, n_points: int = 50) -> BodyFit:
+    kp = np.tile([x, 0.0, z + 0.1], (17, 1)).astype(np.float32)
+    params = BodyParams("anny", np.array(shape, float), np.zeros((19, 3)), np.zeros(3), np.array([x, 0.0, z + 0.1]))
+    return BodyFit(pid, params, ["j"] * 19, np.zeros((4, 3), np.float32), kp, np.zeros((19, 3), np.float32),
+                   FitQuality(2.0, 0.02, n_points, [], True, 0.1))
+
+
+def step(tracker: Tracker, frame: int, people: list[PersonObservation], shapes=None) -> list[BodyFit]:
+    stamp = frame * NS
+    assigned = tracker.assign(people, stamp)
+    fits = [fit_at(p.person_id, float(np.median(p.points[:, 0])), float(np.median(p.points[:, 2])),
+                   shape=(shapes or {}).get(k, (0.5,) * 6)) for k, p in enumerate(assigned)]
+    return tracker.update(fits, assigned, stamp)
+
+
+def test_anonymous_people_keep_their_ids_while_they_cross():
+    """Two people walking towards each other at different depths keep their ids through the crossing."""
+    tracker = Tracker(config())
+    ids = []
+    for frame in range(30):
+        a = observation(-1, -1.5 + 0.1 * frame, z=4.0)
+        b = observation(-1, 1.5 - 0.1 * frame, z=6.0)
+        fits = step(tracker, frame, [b, a] if frame % 2 else [a, b])  # the detector's order changes
+        by_depth = {round(float(np.median(f.keypoints3d[:, 2])) - 0.1): f.person_id for f in fits}
+        ids.append((by_depth[4], by_depth[6]))
+    assert len(set(ids)) == 1, ids
+    assert tracker.stats.tracks_started == 2
+
+
+def test_a_track_keeps_its_id_through_a_short_occlusion_and_ends_after_a_long_one():
+    tracker = Tracker(config(max_unseen_s=1.0))
+    first = step(tracker, 0, [observation(-1, 0.0)])[0].person_id
+    for frame in range(1, 5):
+        step(tracker, frame, [observation(-1, 0.1 * frame)])
+    # hidden for 0.5 s, walking on
+    back = step(tracker, 10, [observation(-1, 1.0)])[0].person_id
+    assert back == first
+    # hidden for 2 s: a new track
+    later = step(tracker, 31, [observation(-1, 1.0)])[0].person_id
+    assert later != first and tracker.stats.tracks_ended == 1
+
+
+def test_detector_ids_are_kept_and_a_returning_id_starts_fresh():
+    tracker = Tracker(config(max_unseen_s=0.5, shape_frames=2))
+    for frame in range(3):
+        step(tracker, frame, [observation(7, 0.0)], shapes={0: (0.2,) * 6})
+    assert tracker.held_shape(7) == pytest.approx(np.full(6, 0.2))
+    fits = step(tracker, 20, [observation(7, 0.0)], shapes={0: (0.8,) * 6})
+    assert fits[0].person_id == 7
+    assert tracker.held_shape(7) is None, "a new track for the returning id: its shape is estimated again"
+
+
+def test_a_held_shape_does_not_drift():
+    """After `shape_frames`, noisy per-frame shapes move the held shape by at most `shape_rate` each."""
+    tracker = Tracker(config(shape_frames=5, shape_rate=0.0))
+    rng = np.random.default_rng(0)
+    for frame in range(40):
+        noisy = tuple(np.clip(0.5 + 0.2 * rng.standard_normal(6), 0, 1))
+        if frame >= 5:
+            noisy = (1.0,) * 6  # a bad frame streak after the shape is held
+        step(tracker, frame, [observation(3, 0.01 * frame)], shapes={0: noisy})
+    held = tracker.held_shape(3)
+    assert held is not None and np.all(np.abs(held - 0.5) < 0.2)
+
+
+def test_the_motion_filter_recovers_a_walking_velocity():
+    f = MotionFilter(accel_sigma=2.0, position_sigma=0.05)
+    rng = np.random.default_rng(1)
+    for k in range(30):
+        f.update(np.array([1.2 * 0.1 * k, 0.0, 5.0]) + 0.03 * rng.standard_normal(3), 0.1)
+    assert f.velocity[0] == pytest.approx(1.2, abs=0.25)
+    assert abs(f.velocity[2]) < 0.25
+
+
+def test_warm_start_is_the_last_fit_at_the_predicted_place_with_the_held_shape():
+    tracker = Tracker(config(shape_frames=3))
+    for frame in range(6):
+        step(tracker, frame, [observation(1, 0.1 * frame)], shapes={0: (0.3,) * 6})
+    warm = tracker.warm_start(1, 7 * NS)  # two frames after the last
+    last = tracker.track(1).last_fit
+    assert warm.shape == pytest.approx(np.full(6, 0.3))
+    moved = warm.transl - last.params.transl
+    assert moved[0] == pytest.approx(0.2, abs=0.05), "walked on at ~1 m/s for 0.2 s"
+    assert np.allclose(warm.pose, last.params.pose)
+    assert tracker.warm_start(99, 7 * NS) is None
+    assert pelvis(last)[0] == pytest.approx(0.5, abs=0.01)
