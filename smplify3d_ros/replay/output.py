@@ -12,6 +12,7 @@ under a temporary name beside the target, renamed into place only when complete.
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -97,6 +98,21 @@ class Output:
             self.temp.unlink(missing_ok=True)
 
 
+def _create_temp(parent: Path, prefix: str, directory: bool) -> Path:
+    """A new file or directory `prefix`XXXXXX with the usual permissions (tempfile's are private: 0600)."""
+    for _ in range(100):
+        temp = parent / f"{prefix}{secrets.token_hex(3)}"
+        try:
+            if directory:
+                temp.mkdir(0o777)
+            else:
+                os.close(os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return temp
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary name {prefix}XXXXXX in {parent}")
+
+
 def prepare_output(target: str | Path, inputs: list[Path], overwrite: bool = False,
                    directory: bool = False) -> Output:
     """Check `target` (module docstring) and create its temporary; OutputError naming the path if not."""
@@ -109,13 +125,7 @@ def prepare_output(target: str | Path, inputs: list[Path], overwrite: bool = Fal
         raise OutputError(f"cannot write {target}: {blocking} is a file, not a directory")
     try:
         parent.mkdir(parents=True, exist_ok=True)
-        prefix = f"{target.name}.partial-"
-        if directory:
-            temp = Path(tempfile.mkdtemp(prefix=prefix, dir=parent))
-        else:
-            handle, name = tempfile.mkstemp(prefix=prefix, dir=parent)
-            os.close(handle)
-            temp = Path(name)
+        temp = _create_temp(parent, f"{target.name}.partial-", directory)
     except OSError as e:
         where = f" ({e.filename})" if e.filename and Path(e.filename) in target.parents else ""
         raise OutputError(f"cannot write {target}: {e.strerror or e}{where}") from None
