@@ -406,6 +406,8 @@ OUTPUT_CASES: dict[str, tuple[Callable[[Path, Path], tuple[list[str], Path]], st
     "an unwritable place": (lambda bag, tmp: (["/proc/fits.mcap"], bag), "cannot write"),
     "a directory named .mcap": (lambda bag, tmp: ([str(_results(tmp, "old.mcap"))], tmp / "old.mcap"),
                                 "is a directory"),
+    "the picture's name": (lambda bag, tmp: ([str(tmp / "fit.png"), "--png", str(tmp / "fit.png")], bag),
+                           "different names"),
 }
 
 

@@ -271,6 +271,8 @@ def replay_bag(
         raise ReplayError(f"{bag} does not exist")
     if png is not None and Path(png).suffix.lower() not in PICTURE_SUFFIXES:
         raise OutputError(f"{png}: a picture file name must end in one of {', '.join(PICTURE_SUFFIXES)}")
+    if png is not None and output is not None and Path(png).resolve() == Path(output).resolve():
+        raise OutputError(f"{png}: the picture and the output bag need different names")
     outputs: list[Output] = []
     try:  # checked before anything is fitted: a run must not fail at its end for its output's sake
         out = None if output is None else prepare_output(output, _inputs(bag), overwrite,
