@@ -1,7 +1,7 @@
 """A rosbag2 recording as the drivers' input: its synchronized sets of input messages, in recording order.
 
 `BagReader` is to the replay what a dataset reader is to kiss-icp's pipeline: it opens the bag (MCAP or
-sqlite3, with rosbags; no ROS runtime), finds the input topics, reads the small side topics first
+sqlite3, through `sources`; no ROS runtime), finds the input topics, reads the small side topics first
 (/tf_static, init_bodies) and then yields every message with the synchronized sets it completed, using
 the node's synchronizer and settings (`runtime.sync`). Ground-truth documents are parsed as they come,
 so memory does not grow with the bag's length.
