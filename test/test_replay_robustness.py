@@ -598,3 +598,22 @@ def test_the_installed_command_on_a_cut_bag(tmp_path):
     assert refused.returncode == 2 and "Traceback" not in refused.stdout + refused.stderr
     assert refused.stderr.strip().splitlines()[-1].startswith("smplify3d replay: ")
     assert bag.read_bytes() == data[: int(len(data) * 0.3)]
+
+
+def test_sigterm_removes_the_partial_output(tmp_path):
+    """A replay stopped by SIGTERM (systemd, docker stop) exits 130 and leaves no partial file."""
+    import signal
+    import time
+
+    out = tmp_path / "fits.mcap"
+    proc = subprocess.Popen([sys.executable, "-m", "smplify3d_ros.cli", "replay", str(base_bag().path), "-o",
+                             str(out), "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not leftovers(tmp_path) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert leftovers(tmp_path), "the partial output appears while the replay runs"
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stdout + stderr and "interrupted" in stderr
+    assert leftovers(tmp_path) == [] and not out.exists()
