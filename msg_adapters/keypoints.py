@@ -148,6 +148,7 @@ class KeypointSet:
     dropped_joints: int = 0  # points with a joint index outside the format: ignored
     duplicate_joints: int = 0  # repeated (person, joint) points: the highest score was kept
     nan_points: int = 0  # points with non-finite u or v: kept as missing (score 0)
+    bad_scores: int = 0  # points with a NaN or infinite score (finite u, v): kept as missing (score 0)
 
     def __len__(self) -> int:
         return len(self.person_ids)
@@ -169,7 +170,8 @@ def read_keypoints(msg: Any, keypoint_format: str | KeypointFormat = "coco17") -
     """Keypoint PointCloud2 (see the module docstring) -> KeypointSet in COCO-17 order.
 
     Joints outside the format are ignored and counted; joints the format has but COCO-17 lacks are
-    ignored; non-finite u/v give score 0; scores are clipped to [0, 1] (NaN -> 0). Raises KeypointError
+    ignored; non-finite u/v, and non-finite scores (an infinite confidence is no confidence), give score 0
+    and are counted; scores are clipped to [0, 1]. Raises KeypointError
     for a missing `u`, `v` or `joint` field, non-integer `joint` / `person` fields or a malformed cloud.
     """
     fmt = get_keypoint_format(keypoint_format)
@@ -192,8 +194,9 @@ def read_keypoints(msg: Any, keypoint_format: str | KeypointFormat = "coco17") -
     person = cols["person"].astype(np.int64) if "person" in cols else np.full(n, -1, np.int64)
     person[person < 0] = -1
     score = cols["score"].astype(np.float64) if "score" in cols else np.ones(n)
-    score = np.clip(np.nan_to_num(score, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
     bad = ~(np.isfinite(u) & np.isfinite(v))
+    bad_score = ~np.isfinite(score) & ~bad
+    score = np.clip(np.where(np.isfinite(score), score, 0.0), 0.0, 1.0)
     u[bad], v[bad], score[bad] = 0.0, 0.0, 0.0
 
     in_format = (joint >= 0) & (joint < fmt.num_joints)
@@ -213,6 +216,7 @@ def read_keypoints(msg: Any, keypoint_format: str | KeypointFormat = "coco17") -
         dropped_joints=int((~in_format).sum()),
         duplicate_joints=int(len(order) - last.sum()),
         nan_points=int(bad.sum()),
+        bad_scores=int(bad_score[in_format].sum()),
     )
 
 

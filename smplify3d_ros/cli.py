@@ -6,6 +6,10 @@
     smplify3d bench                 accuracy benchmark on simulated scenes
     smplify3d bench-speed           fit time and accuracy of the optimizer profiles
     smplify3d bench-extract         precision/recall of the LiDAR person extraction
+
+Errors are one line on stderr naming the file, key or topic at fault, with exit code 2 when the input,
+parameters or output are unusable and 3 for anything unexpected (a bug); `smplify3d --debug CMD ...`
+also prints the traceback. Ctrl-C (and SIGTERM in `replay`) exits with 130.
 """
 
 from __future__ import annotations
@@ -15,6 +19,12 @@ import importlib
 import logging
 import sys
 import time
+import traceback
+from collections.abc import Callable
+
+EXIT_USER_ERROR = 2  # unusable input, parameters or output: the message says what to change
+EXIT_INTERNAL_ERROR = 3  # a bug: --debug shows the traceback
+EXIT_INTERRUPTED = 130
 
 # subcommand -> (module, help); each module has add_arguments(parser) and run(args) -> int
 COMMANDS = {
@@ -40,11 +50,57 @@ def _setup(args: argparse.Namespace) -> int:
     return 0
 
 
+def _user_error_types() -> tuple[type[BaseException], ...]:
+    """Errors that are the input's fault (imported when needed: --help must stay light)."""
+    from smplify3d_ros.settings import ConfigError
+
+    types: list[type[BaseException]] = [ConfigError, OSError]
+    for module, name in (("smplify3d_ros.replay.reader", "ReplayError"),
+                         ("smplify3d_ros.body.smpl_model", "SmplFileError")):
+        try:
+            types.append(getattr(importlib.import_module(module), name))
+        except ImportError:
+            pass
+    return tuple(types)
+
+
+def _one_line(error: BaseException) -> str:
+    """An error as one line: an OSError names its file, others their first line (bounded)."""
+    if isinstance(error, OSError) and error.filename is not None:
+        text = f"{error.filename}: {error.strerror or error}"
+    else:
+        lines = str(error).strip().splitlines()
+        text = lines[0] if lines else type(error).__name__
+    return text if len(text) <= 500 else text[:500] + "..."
+
+
+def run_command(name: str, func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace,
+                debug: bool = False) -> int:
+    """Run one subcommand: any error becomes one line on stderr and a non-zero exit code (2: the input's
+    fault, 3: a bug), its traceback only with `debug`."""
+    try:
+        return int(func(args) or 0)
+    except KeyboardInterrupt:
+        print(f"smplify3d {name}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as error:  # noqa: BLE001 - the one place every error of a command ends up
+        if debug:
+            traceback.print_exc()
+        if isinstance(error, _user_error_types()):
+            print(f"smplify3d {name}: {_one_line(error)}", file=sys.stderr)
+            return EXIT_USER_ERROR
+        hint = "" if debug else " (run `smplify3d --debug ...` for the traceback)"
+        print(f"smplify3d {name}: internal error: {type(error).__name__}: {_one_line(error)}{hint}",
+              file=sys.stderr)
+        return EXIT_INTERNAL_ERROR
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser; only `command`'s module is imported, to add its arguments (so that `--help` of the
     command line, or of one subcommand, never imports the others: some load torch)."""
     parser = argparse.ArgumentParser(prog="smplify3d", description=__doc__.split("\n\n")[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an error")
     sub = parser.add_subparsers(dest="command", required=True)
     setup = sub.add_parser("setup", help="build the body model cache once (run at install time)")
     setup.add_argument("--params", metavar="PROFILE", help="params profile or YAML file (default: jackal_vlp16)")
@@ -72,14 +128,11 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     if hasattr(args, "func"):
-        return args.func(args)
+        return run_command(args.command, args.func, args, args.debug)
     if getattr(args, "missing", None):
         print(f"smplify3d {args.command}: unavailable ({args.missing})", file=sys.stderr)
-        return 2
-    try:
-        return int(importlib.import_module(args.module).run(args) or 0)
-    except KeyboardInterrupt:
-        return 130
+        return EXIT_USER_ERROR
+    return run_command(args.command, lambda a: importlib.import_module(a.module).run(a), args, args.debug)
 
 
 if __name__ == "__main__":

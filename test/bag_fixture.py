@@ -124,7 +124,24 @@ def make_frames(model, T_cam_lidar: np.ndarray, n_frames: int = 2, n_people: int
     return frames
 
 
-def truth_json(frame: FixtureFrame, joint_names: list[str]) -> str:
+def repeat_frames(frames: list[FixtureFrame], n_frames: int) -> list[FixtureFrame]:
+    """`n_frames` frames at 10 Hz from T0 cycling through `frames` (a long bag without posing anyone again)."""
+    import dataclasses
+
+    return [dataclasses.replace(frames[k % len(frames)], stamp=T0 + k * PERIOD) for k in range(n_frames)]
+
+
+def truth_json(frame: FixtureFrame, joint_names: list[str], templates: dict | None = None) -> str:
+    """The frame's ground-truth document; with `templates`, built once per set of people (repeated
+    frames share theirs) and stamped per frame."""
+    if templates is not None:
+        from msg_adapters import split_stamp
+
+        key = id(frame.people)
+        if key not in templates:
+            templates[key] = json.dumps({**json.loads(truth_json(frame, joint_names)), "stamp": "STAMP"})
+        sec, nanosec = split_stamp(frame.stamp)
+        return templates[key].replace('"STAMP"', json.dumps({"sec": sec, "nanosec": nanosec}), 1)
     quality = FitQuality(0.0, 0.0, 0, [], True, 0.0)
     fits = [BodyFit(p.person_id, p.params, joint_names, p.vertices.astype(np.float32),
                     p.keypoints3d.astype(np.float32), np.zeros((len(joint_names), 3), np.float32), quality)
@@ -176,36 +193,80 @@ def frame_messages(factory, camera: CameraModel, frame: FixtureFrame) -> dict[st
     }
 
 
+def fixture_messages(frames: list[FixtureFrame], camera: CameraModel, joint_names: list[str], factory,
+                     T_cam_lidar: np.ndarray, with_tf: bool = True, with_image: bool = True):
+    """(topic name key, message, recording time ns) of a recording, in recording order within each frame."""
+    if with_tf:
+        yield "tf_static", tf_static_msg(factory, np.linalg.inv(T_cam_lidar), T0 - 1.0), _ns(T0 - 0.5)
+    templates: dict = {}
+    for frame in frames:
+        msgs = frame_messages(factory, camera, frame)
+        if with_image:
+            yield "image", msgs["image"], _ns(frame.stamp + 0.010)
+        yield "camera_info", msgs["camera_info"], _ns(frame.stamp + 0.011)
+        yield "points", msgs["points"], _ns(frame.stamp + 0.060)
+        yield "keypoints", msgs["keypoints"], _ns(frame.stamp + 0.040)
+        truth = factory.make("std_msgs/msg/String", data=truth_json(frame, joint_names, templates))
+        yield "ground_truth", truth, _ns(frame.stamp + 0.012)
+
+
+def _ns(t: float) -> int:
+    return int(round(t * 1e9))
+
+
+TYPES = {"image": "sensor_msgs/msg/Image", "camera_info": "sensor_msgs/msg/CameraInfo",
+         "points": "sensor_msgs/msg/PointCloud2", "keypoints": "sensor_msgs/msg/PointCloud2",
+         "ground_truth": "std_msgs/msg/String", "tf_static": "tf2_msgs/msg/TFMessage"}
+
+
 def write_fixture_bag(path: Path, model, T_cam_lidar: np.ndarray, storage: str = "mcap", n_frames: int = 2,
                       n_people: int = 2, seed: int = 0, with_tf: bool = True,
-                      frames: list[FixtureFrame] | None = None) -> FixtureBag:
-    """Write a rosbag2 directory (`storage` mcap or sqlite3) and return what it holds."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
+                      frames: list[FixtureFrame] | None = None, with_image: bool = True) -> FixtureBag:
+    """Write a rosbag2 directory and return what it holds. `storage`: mcap or sqlite3 with rosbags' writer
+    (MCAP uncompressed, chunk CRC 0), or mcap-crc: a bare `path`.mcap file with zstd chunks and their
+    CRCs, written with the mcap package (`write_mcap`)."""
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
     factory = RosbagsFactory(store)
     camera = fixture_camera()
     frames = frames if frames is not None else make_frames(model, T_cam_lidar, n_frames, n_people, seed, camera)
-    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    types = {"image": "sensor_msgs/msg/Image", "camera_info": "sensor_msgs/msg/CameraInfo",
-             "points": "sensor_msgs/msg/PointCloud2", "keypoints": "sensor_msgs/msg/PointCloud2",
-             "ground_truth": "std_msgs/msg/String", "tf_static": "tf2_msgs/msg/TFMessage"}
-    with Writer(path, version=9, storage_plugin=plugin) as writer:
-        conns = {name: writer.add_connection(TOPICS[name], t, typestore=store) for name, t in types.items()
-                 if with_tf or name != "tf_static"}
-
-        def write(name: str, msg, t: float) -> None:
-            writer.write(conns[name], int(round(t * 1e9)), store.serialize_cdr(msg, types[name]))
-
-        if with_tf:
-            write("tf_static", tf_static_msg(factory, np.linalg.inv(T_cam_lidar), T0 - 1.0), T0 - 0.5)
-        for frame in frames:
-            msgs = frame_messages(factory, camera, frame)
-            write("image", msgs["image"], frame.stamp + 0.010)
-            write("camera_info", msgs["camera_info"], frame.stamp + 0.011)
-            write("points", msgs["points"], frame.stamp + 0.060)
-            write("keypoints", msgs["keypoints"], frame.stamp + 0.040)
-            truth = store.types["std_msgs/msg/String"](data=truth_json(frame, list(model.joint_names)))
-            write("ground_truth", truth, frame.stamp + 0.012)
+    messages = fixture_messages(frames, camera, list(model.joint_names), factory, T_cam_lidar, with_tf, with_image)
+    if storage == "mcap-crc":
+        write_mcap(path, store, ((TOPICS[name], TYPES[name], t, store.serialize_cdr(msg, TYPES[name]))
+                                 for name, msg, t in messages))
+    else:
+        _write_with_rosbags(path, store, storage, messages)
     return FixtureBag(path, frames, camera)
+
+
+def _write_with_rosbags(path: Path, store, storage: str, messages) -> None:
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    with Writer(path, version=9, storage_plugin=plugin) as writer:
+        conns = {}
+        for name, msg, t in messages:
+            if name not in conns:
+                conns[name] = writer.add_connection(TOPICS[name], TYPES[name], typestore=store)
+            writer.write(conns[name], t, store.serialize_cdr(msg, TYPES[name]))
+
+
+def write_mcap(path: Path, store, messages) -> Path:
+    """A bare MCAP file of (topic, type, log time, CDR bytes), laid out as rosbag2 writes it (profile ros2,
+    ros2msg schemas, offered_qos_profiles), zstd chunks with CRCs: written with the mcap package, not with
+    the code the tests check."""
+    from mcap.writer import CompressionType, Writer
+
+    channels: dict[str, int] = {}
+    with open(path, "wb") as handle:
+        writer = Writer(handle, compression=CompressionType.ZSTD, enable_crcs=True)
+        writer.start(profile="ros2", library="bag_fixture")
+        for topic, msgtype, t, raw in messages:
+            if topic not in channels:
+                definition, _ = store.generate_msgdef(msgtype, ros_version=2)
+                schema = writer.register_schema(msgtype, "ros2msg", definition.encode())
+                channels[topic] = writer.register_channel(topic, "cdr", schema, {"offered_qos_profiles": ""})
+            writer.add_message(channels[topic], log_time=t, data=bytes(raw), publish_time=t)
+        writer.finish()
+    return path

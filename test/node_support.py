@@ -317,3 +317,44 @@ def bad_frame(kind: str, factory: Any, camera: Any, frame: Any, stamp: float) ->
     elif kind != "time_backwards":
         raise ValueError(kind)
     return msgs
+
+
+# -- a fitter for tests of the wiring, not of the fitting --------------------------------------------------
+class StubModel:
+    name = "stub"
+    joint_names = ("hip", "knee")
+    shape_names = ("s0",)
+
+
+class StubFitter:
+    """Returns one small fit per person, at the depth of its points (or 3 m); `calls` holds the people."""
+
+    model = StubModel()
+    faces_np = np.array([[0, 1, 2]])
+
+    def __init__(self) -> None:
+        self.calls: list[list] = []
+
+    def fit(self, people, K, origin, options=None):
+        from smplify3d_ros.types import BodyFit, BodyParams, FitQuality
+
+        self.calls.append(people)
+        fits = []
+        for p in people:
+            z = float(np.median(p.points[:, 2])) if len(p.points) else 3.0
+            params = BodyParams("stub", np.zeros(1), np.zeros((2, 3)), np.zeros(3), np.array([0.0, 0.0, z]))
+            if p.init is not None:
+                params = p.init.copy()
+            verts = np.array([[0, 0, z], [0.1, 0, z], [0, 0.1, z]], np.float32)
+            fits.append(BodyFit(p.person_id, params, ["hip", "knee"], verts, np.tile([0, 0, z], (17, 1)).astype(
+                np.float32), np.zeros((2, 3), np.float32), FitQuality(1.0, 0.01, len(p.points), [], True, 0.5)))
+        return fits
+
+
+def stub_replay(path: Any, output: Any = None, **kwargs: Any):
+    """replay_bag with the default profile and the stub fitter (fast: for tests of everything but fitting)."""
+    from smplify3d_ros.replay import replay_bag
+
+    kwargs.setdefault("fitter", StubFitter())
+    return replay_bag(path, output, progress=False, config=config(), node_config=kwargs.pop("node_config", None)
+                      or node_config(), **kwargs)

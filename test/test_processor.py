@@ -26,32 +26,7 @@ from smplify3d_ros.types import BodyFit, BodyParams, FitQuality
 FACTORY = RosbagsFactory()
 
 
-class StubModel:
-    name = "stub"
-    joint_names = ("hip", "knee")
-
-
-class StubFitter:
-    """Returns one small fit per person, at the depth of its points (or 3 m)."""
-
-    model = StubModel()
-    faces_np = np.array([[0, 1, 2]])
-
-    def __init__(self) -> None:
-        self.calls: list[list] = []
-
-    def fit(self, people, K, origin, options=None):
-        self.calls.append(people)
-        fits = []
-        for p in people:
-            z = float(np.median(p.points[:, 2])) if len(p.points) else 3.0
-            params = BodyParams("stub", np.zeros(1), np.zeros((2, 3)), np.zeros(3), np.array([0.0, 0.0, z]))
-            if p.init is not None:
-                params = p.init.copy()
-            verts = np.array([[0, 0, z], [0.1, 0, z], [0, 0.1, z]], np.float32)
-            fits.append(BodyFit(p.person_id, params, ["hip", "knee"], verts, np.tile([0, 0, z], (17, 1)).astype(
-                np.float32), np.zeros((2, 3), np.float32), FitQuality(1.0, 0.01, len(p.points), [], True, 0.5)))
-        return fits
+StubFitter = node_support.StubFitter
 
 
 @pytest.fixture()
@@ -272,3 +247,102 @@ def test_rate_limited_logging_works_with_the_rclpy_logger(frame):
     result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0 + 0.2)))  # error
     assert result.drop == "fit_error"
     assert p.stats.drops["internal_error"] == 0
+
+
+def _init_doc(body: dict, stamp: float = T0) -> str:
+    return json.dumps({"schema": "smplify3d_ros/bodies", "version": 1, "stamp": {"sec": int(stamp), "nanosec": 0},
+                       "frame_id": bag_fixture.CAMERA_FRAME, "bodies": [body]})
+
+
+@pytest.mark.parametrize("n_shape", [0, 100])
+def test_init_bodies_with_another_shape_size_than_the_model_are_bad_documents(n_shape, frame):
+    """Such a document used to be accepted and the frame then lost as a fit_error."""
+    p = pipeline()
+    body = {"id": 1, "model": "stub", "shape": [0.1] * n_shape, "root_orient": [0, 0, 0],
+            "transl": [1.0, 2.0, 3.0], "pose": {"knee": [0.1, 0, 0]}}
+    assert not p.add_init_bodies(_init_doc(body))
+    assert p.stats.init_bodies_dropped["bad_document"] == 1
+    result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    assert result.ok and all(person.init is None for person in p.fitter.calls[-1])
+
+
+class NonFiniteFitter(StubFitter):
+    """Person 1's fit diverged: NaN translation and vertices (person 0 is fine)."""
+
+    def fit(self, people, K, origin, options=None):
+        fits = super().fit(people, K, origin, options)
+        for fit in fits:
+            if fit.person_id == 1:
+                fit.params.transl = np.array([np.nan, 0.0, 1e308 * 10])
+                fit.vertices = np.full_like(fit.vertices, np.nan)
+                fit.flags.add("diverged")
+        return fits
+
+
+def _numbers(msg) -> list[float]:
+    """Every float of a message, recursively (rosbags messages: dataclasses and numpy arrays)."""
+    import dataclasses
+
+    if isinstance(msg, np.ndarray):
+        return msg.astype(np.float64).ravel().tolist() if msg.dtype.kind == "f" else []
+    if isinstance(msg, float):
+        return [msg]
+    if isinstance(msg, (list, tuple)):
+        return [x for item in msg for x in _numbers(item)]
+    if dataclasses.is_dataclass(msg):
+        return [x for f in dataclasses.fields(msg) for x in _numbers(getattr(msg, f.name))]
+    return []
+
+
+def test_a_non_finite_fit_is_withheld_and_counted_never_published(frame):
+    p = MessageProcessor(node_support.config(), node_support.node_config(), FACTORY, fitter=NonFiniteFitter())
+    first = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    assert first.ok and [f.person_id for f in first.fits] == [0], "the finite person is published"
+    assert p.stats.people_dropped["non_finite"] == 1
+    assert p.stats.values()["people_dropped.non_finite"] == 1
+    for name, msg in first.outputs.items():
+        assert np.isfinite(_numbers(msg)).all(), name
+    from msg_adapters import read_fields
+
+    for name in ("joints", "body_points"):
+        xyz = read_fields(first.outputs[name], ["x", "y", "z"])
+        assert all(np.isfinite(c).all() for c in xyz.values()) and len(xyz["x"]) > 0, name
+    assert len(first.outputs["people"].poses) == 1
+    doc = json.loads(first.outputs["bodies"].data)
+    assert [b["id"] for b in doc["bodies"]] == [0] and None not in doc["bodies"][0]["transl"]
+
+
+def test_init_bodies_with_an_absurd_translation_are_refused(frame):
+    """transl 1e308 used to reach the fit and publish NaN poses; the parser refuses it now."""
+    p = pipeline()
+    body = {"id": 1, "model": "stub", "shape": [0.1], "root_orient": [0, 0, 0], "transl": [1e308, 0, 3.0],
+            "pose": {"knee": [0.1, 0, 0]}}
+    assert not p.add_init_bodies(_init_doc(body))
+    assert p.stats.init_bodies_dropped["bad_document"] == 1
+
+
+def test_ignored_keypoint_points_are_counted_in_the_diagnostics(frame):
+    from msg_adapters import make_pointcloud2
+
+    p = pipeline()
+    msgs = node_support.frame_at(FACTORY, CAMERA, frame, T0)
+    kp = frame.keypoints[0]
+    n = len(kp)
+    u, v, score = kp[:, 0].astype(np.float32), kp[:, 1].astype(np.float32), kp[:, 2].astype(np.float32)
+    joint = np.arange(n, dtype=np.uint16)
+    u, v, score, joint = (np.append(a, x) for a, x in ((u, 1.0), (v, 1.0), (score, 0.9), (joint, 99)))
+    u[3], score[4] = np.nan, np.inf  # a NaN position, an infinite confidence
+    msgs["keypoints"] = make_pointcloud2(T0, bag_fixture.CAMERA_FRAME, {
+        "u": u, "v": v, "score": score, "person": np.zeros(len(u), np.int32), "joint": joint.astype(np.uint16)},
+        FACTORY)
+    result = p.process(messages(msgs))
+    assert result.ok
+    values = p.stats.values()
+    assert values["keypoints_ignored.out_of_format"] == 1
+    assert values["keypoints_ignored.non_finite"] == 1
+    assert values["keypoints_ignored.bad_score"] == 1
+    people = p.fitter.calls[-1]
+    assert people[0].keypoints[4, 2] == 0.0, "an infinite score is no confidence"
+    status = DiagnosticsReporter("test").message(T0, values, FACTORY).status[0]
+    keys = {kv.key for kv in status.values}
+    assert {"keypoints_ignored.out_of_format", "keypoints_ignored.non_finite"} <= keys

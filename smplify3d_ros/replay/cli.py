@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 
 
@@ -15,30 +16,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="params profile name (e.g. ouster64) or YAML path; default: jackal_vlp16")
     parser.add_argument("--png", metavar="FILE", help="write a picture of the fit of one representative frame")
     parser.add_argument("--max-frames", type=int, default=None, help="stop after this many synchronized frames")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing output file or bag directory (never an input)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _terminated(signum: int, frame: object) -> None:
+    """SIGTERM unwinds like Ctrl-C, so that the partial output is removed."""
+    raise KeyboardInterrupt
+
+
 def run(args: argparse.Namespace) -> int:
-    """0 on success, 1 when nothing could be fitted, 2 for an unusable bag or params."""
+    """0 on success, 1 when nothing could be fitted, 2 for an unusable bag, output or params (one line on
+    stderr; `smplify3d` reports anything else)."""
     from smplify3d_ros.replay.reader import ReplayError
     from smplify3d_ros.replay.run import replay_bag
     from smplify3d_ros.settings import ConfigError
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
+        previous = signal.signal(signal.SIGTERM, _terminated)
+    except ValueError:  # not the main thread: leave signals alone
+        previous = None
+    try:
         summary = replay_bag(args.bag, args.output, args.params, args.png, progress=not args.no_progress,
-                             max_frames=args.max_frames)
+                             max_frames=args.max_frames, overwrite=args.overwrite)
     except (ReplayError, ConfigError) as e:
         print(f"smplify3d replay: {e}", file=sys.stderr)
         return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     print(summary.text())
     return 0 if summary.frames_published > 0 else 1
 
 
 def main(argv: list[str] | None = None) -> int:
+    from smplify3d_ros.cli import run_command
+
     parser = argparse.ArgumentParser(prog="smplify3d replay", description="fit every frame of a rosbag2")
     add_arguments(parser)
-    return run(parser.parse_args(argv))
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an error")
+    args = parser.parse_args(argv)
+    return run_command("replay", run, args, args.debug)
 
 
 if __name__ == "__main__":

@@ -22,8 +22,9 @@ class PictureChooser:
         if self.best is None or key > self.best[0]:
             self.best = (key, frame, fits)
 
-    def write(self, path: Path, faces: np.ndarray) -> bool:
-        """Write the picture; False when no frame was fitted."""
+    def write(self, path: Path, faces: np.ndarray, suffix: str = "") -> bool:
+        """Write the picture in the format of `suffix` (default: `path`'s, e.g. .png); False when no frame
+        was fitted."""
         import cv2
 
         from smplify3d_ros.overlay import overlay_image, top_view
@@ -33,7 +34,9 @@ class PictureChooser:
         _, frame, fits = self.best
         image = overlay_image(frame, fits, faces)
         image = np.hstack([image, top_view(frame, fits, image.shape[0])])
+        ok, encoded = cv2.imencode(suffix or path.suffix or ".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        if not ok:
+            raise OSError(f"cannot encode a picture as {suffix or path.suffix!r}")
         path.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
-            raise OSError(f"could not write {path}")
+        path.write_bytes(encoded.tobytes())
         return True

@@ -1,13 +1,17 @@
 """A rosbag2 recording as the drivers' input: its synchronized sets of input messages, in recording order.
 
 `BagReader` is to the replay what a dataset reader is to kiss-icp's pipeline: it opens the bag (MCAP or
-sqlite3, with rosbags; no ROS runtime), finds the input topics, reads the small side topics first
+sqlite3, through `sources`; no ROS runtime), finds the input topics, reads the small side topics first
 (/tf_static, init_bodies) and then yields every message with the synchronized sets it completed, using
 the node's synchronizer and settings (`runtime.sync`). Ground-truth documents are parsed as they come,
 so memory does not grow with the bag's length.
 
 Input topics are the node's (`topics.*`); a topic missing from the bag is looked up by type instead (the
 only Image, the only CameraInfo; PointCloud2 clouds with `u`, `v` fields are keypoints, with `x` points).
+
+No message stops the replay: the storage's faults (bad chunks, a cut file, corrupt sqlite3 rows:
+`sources`), messages whose bytes are not their type and unusable ground-truth documents are counted in
+`faults` by reason (sources.READ_*) and skipped.
 """
 
 from __future__ import annotations
@@ -18,7 +22,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from msg_adapters import clip
+from msg_adapters.bodies import MAX_DOCUMENT_BYTES
 from smplify3d_ros.eval.truth import GROUND_TRUTH_TOPIC, TruthFrame, parse_truth_document
+from smplify3d_ros.replay.sources import READ_BAD_TRUTH, READ_UNDECODABLE, ReadFaults, SourceError, open_source
 from smplify3d_ros.runtime.config import NodeConfig, TopicsConfig
 from smplify3d_ros.runtime.messages import FrameMessages
 from smplify3d_ros.runtime.sync import Synchronizer, make_synchronizer
@@ -52,18 +59,30 @@ class InputTopics:
 class BagStep:
     """One recorded message, and what it completed."""
 
-    connection: Any  # rosbags Connection
+    connection: Any  # sources.BagConnection
     timestamp: int  # recording time, ns
     raw: bytes  # CDR bytes as recorded
     frames: list[FrameMessages] = field(default_factory=list)  # synchronized sets this message completed
     truth: TruthFrame | None = None  # the ground-truth document this message holds
 
 
-def _fields_of_first(reader: Any, connection: Any, typestore: Any) -> set[str]:
+def _fields_of_first(reader: Any, connection: Any, typestore: Any, tries: int = 10) -> set[str]:
+    """The field names of the first decodable cloud of a topic (the main pass counts undecodable ones)."""
     for conn, _, raw in reader.messages(connections=[connection]):
-        msg = typestore.deserialize_cdr(raw, conn.msgtype)
-        return {str(f.name) for f in msg.fields}
+        try:
+            return {str(f.name) for f in typestore.deserialize_cdr(raw, conn.msgtype).fields}
+        except Exception:  # noqa: BLE001 - rosbags raises several types for bytes of another type
+            tries -= 1
+            if tries == 0:
+                break
     return set()
+
+
+def _topic_list(by_topic: dict[str, str], limit: int = 20) -> str:
+    """The bag's topics for an error message (bounded: a bag may hold thousands, with long names)."""
+    items = [f"{clip(t, 80)} ({clip(mt, 60)})" for t, mt in sorted(by_topic.items())[:limit]]
+    more = f" and {len(by_topic) - limit} more" if len(by_topic) > limit else ""
+    return (", ".join(items) or "none") + more
 
 
 def resolve_topics(reader: Any, typestore: Any, topics: TopicsConfig) -> InputTopics:
@@ -77,9 +96,8 @@ def resolve_topics(reader: Any, typestore: Any, topics: TopicsConfig) -> InputTo
         if len(candidates) == 1:
             return candidates[0]
         if required:
-            have = ", ".join(f"{t} ({mt})" for t, mt in sorted(by_topic.items())) or "none"
-            raise ReplayError(f"cannot tell the {what} topic: {configured!r} is not in the bag and it has "
-                              f"{len(candidates)} {msgtype} topics; topics: {have}")
+            raise ReplayError(f"cannot tell the {what} topic: {clip(configured)!r} is not in the bag and it "
+                              f"has {len(candidates)} {msgtype} topics; topics: {_topic_list(by_topic)}")
         return None
 
     camera_info = pick(topics.camera_info, "sensor_msgs/msg/CameraInfo", "camera info")
@@ -104,9 +122,9 @@ def resolve_topics(reader: Any, typestore: Any, topics: TopicsConfig) -> InputTo
         for what, candidates in kinds.items():
             if found[what] is None:
                 if len(candidates) != 1:
-                    raise ReplayError(f"cannot tell the {what} topic: {getattr(topics, what)!r} is not in the "
-                                      f"bag and {len(candidates)} PointCloud2 topics look like {what}: "
-                                      f"{candidates}")
+                    raise ReplayError(f"cannot tell the {what} topic: {clip(getattr(topics, what))!r} is not "
+                                      f"in the bag and {len(candidates)} PointCloud2 topics look like "
+                                      f"{what}: {clip(candidates)}")
                 found[what] = candidates[0]
     init = topics.init_bodies if topics.init_bodies and by_topic.get(topics.init_bodies) == "std_msgs/msg/String" \
         else None
@@ -118,7 +136,6 @@ class BagReader:
     """See the module docstring. Use as a context manager; iterate for `BagStep`s."""
 
     def __init__(self, path: str | Path, node: NodeConfig, log: Any = None) -> None:
-        from rosbags.rosbag2 import Reader
         from rosbags.typesys import Stores, get_typestore
 
         self.path = Path(path)
@@ -128,10 +145,12 @@ class BagReader:
         self.log = log
         self.typestore = get_typestore(Stores.ROS2_JAZZY)
         try:
-            self.reader = Reader(self.path)
-            self.reader.open()
-        except Exception as e:  # noqa: BLE001 - rosbags raises several types for unreadable bags
-            raise ReplayError(f"cannot read {self.path}: {e}") from e
+            self.reader = open_source(self.path, log)
+        except SourceError as e:
+            raise ReplayError(str(e)) from None
+        except Exception as e:  # noqa: BLE001 - rosbags and sqlite raise several types for unreadable bags
+            raise ReplayError(f"cannot read {self.path}: {clip(' '.join(str(e).split()), 200)}") from None
+        self.faults: ReadFaults = self.reader.faults
         try:
             self.topics = resolve_topics(self.reader, self.typestore, node.topics)
         except Exception:
@@ -139,8 +158,8 @@ class BagReader:
             raise
         self.tf = TransformGraph()
         self.init_docs: list[tuple[int, str]] = []  # (stamp ns or -1 if unreadable, document)
+        self.messages_read = 0  # messages the main pass got from the storage
         self._read_side_topics()
-        self.truth_errors = 0  # ground-truth documents that could not be parsed
 
     def __enter__(self) -> BagReader:
         return self
@@ -167,12 +186,27 @@ class BagReader:
         """One pass over /tf_static and init_bodies (small topics) before the replay."""
         wanted = {TF_STATIC_TOPIC} | ({self.topics.init_bodies} if self.topics.init_bodies else set())
         conns = [c for c in self.reader.connections if c.topic in wanted]
-        for conn, _, raw in self.reader.messages(connections=conns) if conns else ():
-            msg = self.typestore.deserialize_cdr(raw, conn.msgtype)
-            if conn.topic == TF_STATIC_TOPIC and conn.msgtype == "tf2_msgs/msg/TFMessage":
-                self.tf.add(msg)
-            elif conn.topic == self.topics.init_bodies:
-                self.init_docs.append((_document_stamp_ns(msg.data), msg.data))
+        for conn, timestamp, raw in self.reader.messages(connections=conns) if conns else ():
+            msg = self._decode(conn, timestamp, raw)
+            if msg is None:
+                continue
+            try:
+                if conn.topic == TF_STATIC_TOPIC and conn.msgtype == "tf2_msgs/msg/TFMessage":
+                    self.tf.add(msg)
+                elif conn.topic == self.topics.init_bodies:
+                    self.init_docs.append((_document_stamp_ns(msg.data), msg.data))
+            except Exception as e:  # noqa: BLE001 - a transform with unusable values
+                self.faults.add(READ_UNDECODABLE, f"{clip(conn.topic)} at {timestamp}: {clip(e)}",
+                                key=(conn.id, timestamp))
+
+    def _decode(self, conn: Any, timestamp: int, raw: bytes) -> Any:
+        """The message, or None (counted) when its bytes are not a `conn.msgtype`."""
+        try:
+            return self.typestore.deserialize_cdr(raw, conn.msgtype)
+        except Exception as e:  # noqa: BLE001 - rosbags raises SerdeError, ValueError, IndexError, ...
+            self.faults.add(READ_UNDECODABLE, f"{clip(conn.topic)} at {timestamp}: not a {clip(conn.msgtype)} "
+                            f"({type(e).__name__}: {clip(e)})", key=(conn.id, timestamp, len(raw)))
+            return None
 
     def synchronizer(self, on_set: Any) -> Synchronizer:
         sync = self.node.sync
@@ -190,28 +224,49 @@ class BagReader:
                                            self.topics.compressed))
 
         self.sync = self.synchronizer(on_set)
+        self.messages_read = 0
         for conn, timestamp, raw in self.reader.messages():
+            self.messages_read += 1
             step = BagStep(conn, timestamp, raw)
             i = index.get(conn.topic)
             if i is not None:
-                self.sync.add(i, self.typestore.deserialize_cdr(raw, conn.msgtype))
+                self._synchronize(i, conn, timestamp, raw)
                 step.frames, completed[:] = list(completed), []
             elif conn.topic == GROUND_TRUTH_TOPIC and conn.msgtype == "std_msgs/msg/String":
-                step.truth = self._truth(raw, conn.msgtype)
+                step.truth = self._truth(conn, timestamp, raw)
             yield step
 
-    def _truth(self, raw: bytes, msgtype: str) -> TruthFrame | None:
+    def _synchronize(self, index: int, conn: Any, timestamp: int, raw: bytes) -> None:
+        msg = self._decode(conn, timestamp, raw)
+        if msg is None:
+            return
         try:
-            return parse_truth_document(self.typestore.deserialize_cdr(raw, msgtype).data)
-        except (ValueError, KeyError, TypeError) as e:
-            self.truth_errors += 1
-            if self.log is not None:
-                self.log.warning(f"{GROUND_TRUTH_TOPIC}: ignored a document: {e}")
+            self.sync.add(index, msg)
+        except (AttributeError, TypeError, ValueError, OverflowError) as e:  # a header without a stamp
+            self.faults.add(READ_UNDECODABLE, f"{clip(conn.topic)} at {timestamp}: no usable header stamp "
+                            f"({clip(e)})", key=(conn.id, timestamp, len(raw)))
+
+    def _truth(self, conn: Any, timestamp: int, raw: bytes) -> TruthFrame | None:
+        msg = self._decode(conn, timestamp, raw)
+        if msg is None:
             return None
+        try:
+            return parse_truth_document(msg.data)
+        except Exception as e:  # noqa: BLE001 - a hostile document must not stop the replay
+            self.faults.add(READ_BAD_TRUTH, f"{GROUND_TRUTH_TOPIC} at {timestamp}: ignored a document: "
+                            f"{clip(e)}", key=(conn.id, timestamp))
+            return None
+
+    @property
+    def truth_errors(self) -> int:
+        """Ground-truth documents that could not be used."""
+        return self.faults.counts[READ_BAD_TRUTH]
 
 
 def _document_stamp_ns(text: str) -> int:
     """The stamp of a bodies document (-1 when unreadable: the processor's parser says why later)."""
+    if len(text) > MAX_DOCUMENT_BYTES:
+        return -1
     try:
         stamp = json.loads(text)["stamp"]
         if isinstance(stamp, dict):

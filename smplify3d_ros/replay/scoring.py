@@ -2,8 +2,8 @@
 (vertices) per person id, in mm, without any alignment (the fits must be where the people are).
 
 Results and ground-truth frames are matched by stamp (within the synchronizer's slop) in whichever order
-they arrive; either waits at most `window_ns` of the other's stamps for its partner, so memory stays
-bounded whatever the bag's length.
+they arrive; either waits at most `window_ns` of the other's stamps for its partner, and errors are kept
+as running sums, so memory stays bounded whatever the bag's length.
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ class TruthScorer:
         self.window_ns = max(window_ns, 2 * slop_ns)
         self._results: deque[_Fitted] = deque()
         self._truths: deque[TruthFrame] = deque()
-        self.joint_errors: list[float] = []
-        self.vertex_errors: list[float] = []
+        self._joint_sum, self._joint_n = 0.0, 0  # MPJPE per scored person, mm
+        self._vertex_sum, self._vertex_n = 0.0, 0  # PVE per scored person, mm
         self.frames = 0  # ground-truth frames scored
         self.people = 0  # ground-truth people with a fit
         self.missed = 0  # ground-truth people without a fit in a scored frame
@@ -86,9 +86,11 @@ class TruthScorer:
             self.people += 1
             keypoints, vertices = self._geometry(body, truth.joint_names)
             if keypoints is not None:
-                self.joint_errors.append(metrics.mpjpe(fit.keypoints3d, keypoints))
+                self._joint_sum += metrics.mpjpe(fit.keypoints3d, keypoints)
+                self._joint_n += 1
             if vertices is not None and body.params.model == fit.model and len(vertices) == len(fit.vertices):
-                self.vertex_errors.append(metrics.pve(fit.vertices, vertices))
+                self._vertex_sum += metrics.pve(fit.vertices, vertices)
+                self._vertex_n += 1
 
     def _geometry(self, body: TruthBody, joint_names: list[str]) -> tuple[np.ndarray | None, np.ndarray | None]:
         """The body's keypoints and vertices: the document's, else the body model's when it is the fits'."""
@@ -105,8 +107,8 @@ class TruthScorer:
 
     @property
     def mpjpe_mm(self) -> float | None:
-        return float(np.mean(self.joint_errors)) if self.joint_errors else None
+        return self._joint_sum / self._joint_n if self._joint_n else None
 
     @property
     def pve_mm(self) -> float | None:
-        return float(np.mean(self.vertex_errors)) if self.vertex_errors else None
+        return self._vertex_sum / self._vertex_n if self._vertex_n else None

@@ -6,6 +6,7 @@ processor counts and logs.
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,6 +42,12 @@ DROP_FIT_ERROR = "fit_error"  # the fitting raised (a bug): logged with its trac
 DROP_INTERNAL = "internal_error"  # anything else raised while handling the frame (a bug): logged
 DROP_QUEUE = "stale"  # (node) replaced in the worker queue by a newer frame before it was fitted
 
+# Keypoint points ignored in a frame that was used (`counts` of `to_frame`, `keypoints_ignored.*` values).
+IGNORED_OUT_OF_FORMAT = "out_of_format"  # joint index outside the keypoint format (e.g. 99 for COCO-17)
+IGNORED_NON_FINITE = "non_finite"  # NaN / inf u or v: the joint reads as missing
+IGNORED_BAD_SCORE = "bad_score"  # NaN / inf score: the joint reads as missing
+IGNORED_DUPLICATE = "duplicate"  # a (person, joint) given twice: the higher score is kept
+
 
 class FrameDrop(Exception):
     """The frame cannot be used; `reason` is one of the DROP_* keys."""
@@ -72,8 +79,10 @@ class FrameMessages:
         return stamp_to_ns(self.stamp)
 
 
-def to_frame(msgs: FrameMessages, keypoint_format: str, transforms: Transforms, default_camera_frame: str) -> Frame:
-    """Messages -> Frame (all people, as detected). Raises FrameDrop."""
+def to_frame(msgs: FrameMessages, keypoint_format: str, transforms: Transforms, default_camera_frame: str,
+             counts: Counter | None = None) -> Frame:
+    """Messages -> Frame (all people, as detected). Raises FrameDrop. Keypoint points it ignores are added
+    to `counts` by IGNORED_* reason."""
     try:
         camera = camera_info_to_model(msgs.camera_info)
     except (CameraInfoError, ValueError, TypeError) as e:
@@ -104,6 +113,11 @@ def to_frame(msgs: FrameMessages, keypoint_format: str, transforms: Transforms, 
         kps = read_keypoints(msgs.keypoints, keypoint_format)
     except (KeypointError, PointCloudError, ValueError, TypeError) as e:
         raise FrameDrop(DROP_BAD_KEYPOINTS, str(e)) from None
+    if counts is not None:
+        for reason, n in ((IGNORED_OUT_OF_FORMAT, kps.dropped_joints), (IGNORED_NON_FINITE, kps.nan_points),
+                          (IGNORED_BAD_SCORE, kps.bad_scores), (IGNORED_DUPLICATE, kps.duplicate_joints)):
+            if n:
+                counts[reason] += n
     stamp_ns = msgs.stamp_ns
     T = transforms.cam_from_lidar(frame_id, cloud.frame_id, stamp_ns)
     return Frame(

@@ -9,6 +9,17 @@ transform) is dropped, counted by reason in `stats.drops` and logged (rate-limit
 it cannot fit (too few usable keypoints, keypoints far outside the image, more than `max_people`) are
 counted in `stats.people_dropped`. A frame without people is not a drop: its outputs are published
 empty, so that markers of people who left are deleted.
+
+No NaN or infinity is ever published: a fit with a non-finite parameter, vertex or keypoint (a diverged
+optimization, an overflowing transform) is withheld from the frame's outputs, counted as
+`people_dropped.non_finite` and logged; the frame's other people are published (the withheld person's
+markers are deleted, as for a person who left). Withheld, not replaced by the person's last finite
+state: a stale body shown as current is a worse lie than a missing one. `init_bodies` documents are
+checked against the body model's joints and shape size (a wrong shape size is a `bad_document`).
+
+Keypoint points the reader ignores in a frame it uses (joint index outside the format, NaN / inf u, v
+or score, a joint given twice) are counted in `stats.keypoints_ignored` (`keypoints_ignored.<reason>`
+values, messages.IGNORED_*).
 """
 
 from __future__ import annotations
@@ -17,13 +28,13 @@ import logging
 import threading
 import time
 import traceback
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from msg_adapters import BodiesError, MessageFactory, bodies_json_to_params, stamp_to_ns
+from msg_adapters import BodiesError, MessageFactory, bodies_json_to_params, clip, stamp_to_ns
 from msg_adapters.factory import resolve_factory
 from smplify3d_ros.config import Config
 from smplify3d_ros.fitting.fitter import Fitter
@@ -46,6 +57,31 @@ from smplify3d_ros.runtime.transforms import Transforms, transform_fit
 from smplify3d_ros.types import BodyFit, BodyParams, Frame
 
 _LOG_EVERY_S = 5.0  # each drop reason is logged at most this often (with the count in between)
+PERSON_NON_FINITE = "non_finite"  # people_dropped key: a fit holding NaN / inf, withheld
+
+
+@dataclass
+class _Stats(ProcessorStats):
+    """ProcessorStats with the keypoint points ignored in used frames (`keypoints_ignored.<reason>`)."""
+
+    keypoints_ignored: Counter = field(default_factory=Counter)
+
+    def values(self) -> dict[str, float | int | str]:
+        values = super().values()
+        values.update({f"keypoints_ignored.{k}": n for k, n in sorted(self.keypoints_ignored.items())})
+        return values
+
+
+def _short_traceback(e: BaseException, frames: int) -> str:
+    """The exception and its last `frames` frames, without the "Traceback" header (one log entry)."""
+    lines = traceback.format_list(traceback.extract_tb(e.__traceback__)[-frames:])
+    return "".join(lines + traceback.format_exception_only(type(e), e))
+
+
+def _finite(fit: BodyFit) -> bool:
+    p = fit.params
+    return all(np.isfinite(np.asarray(a, dtype=np.float64)).all()
+               for a in (p.shape, p.pose, p.root_orient, p.transl, fit.vertices, fit.keypoints3d, fit.joints))
 
 
 @dataclass
@@ -88,7 +124,7 @@ class MessageProcessor:
         self.transforms = transforms or Transforms(node.extrinsic, log=self.log)
         self.outputs = OutputBuilder(node.publish, self.fitter.faces_np, self.factory)
         self.keep_frames = keep_frames
-        self.stats = ProcessorStats()
+        self.stats = _Stats()
         self._last_stamp_ns: int | None = None
         self._init_docs: deque[tuple[int, str, dict[int, BodyParams]]] = deque(maxlen=50)
         self._lock = threading.Lock()
@@ -116,8 +152,10 @@ class MessageProcessor:
     def add_init_bodies(self, msg: Any) -> bool:
         """Keep one `init_bodies` document (std_msgs/String or str) for the frame with its stamp."""
         text = msg if isinstance(msg, (str, bytes)) else msg.data
+        shape_names = getattr(self.fitter.model, "shape_names", None)
         try:
-            stamp, frame_id, bodies = bodies_json_to_params(text, self.fitter.model.joint_names)
+            stamp, frame_id, bodies = bodies_json_to_params(
+                text, self.fitter.model.joint_names, shape_size=None if shape_names is None else len(shape_names))
         except BodiesError as e:
             self.stats.init_bodies_dropped["bad_document"] += 1
             self._log_limited("init_bodies", f"init_bodies: ignored a document: {e}")
@@ -135,8 +173,8 @@ class MessageProcessor:
         _, frame_id, bodies = min(docs, key=lambda d: abs(d[0] - stamp_ns))
         if frame_id and frame_id != camera_frame:
             self.stats.init_bodies_dropped["wrong_frame"] += 1
-            self._log_limited("init_frame", f"init_bodies: document in frame {frame_id!r}, the camera is "
-                              f"{camera_frame!r}; ignored")
+            self._log_limited("init_frame", f"init_bodies: document in frame {clip(frame_id)!r}, the camera "
+                              f"is {clip(camera_frame)!r}; ignored")
             return {}
         model = self.fitter.model.name
         usable = {pid: p for pid, p in bodies.items() if p.model == model}
@@ -173,13 +211,12 @@ class MessageProcessor:
         try:
             self._process(msgs, result)
         except Exception as e:  # noqa: BLE001 - bad input or a bug: count, log, keep going
-            drop = e if isinstance(e, FrameDrop) else FrameDrop(DROP_INTERNAL, "".join(
-                traceback.format_exception(type(e), e, e.__traceback__)[-4:]))
+            drop = e if isinstance(e, FrameDrop) else FrameDrop(DROP_INTERNAL, _short_traceback(e, 3))
             self.stats.drops[drop.reason] += 1
             result.drop, result.message, result.outputs, result.fits = drop.reason, drop.message, {}, []
             level = "error" if drop.reason in (DROP_FIT_ERROR, DROP_INTERNAL) else "warning"
-            self._log_limited(drop.reason, f"dropped frame {stamp_ns * 1e-9:.3f}: {drop.reason}: {drop.message}",
-                              level)
+            detail = drop.message if drop.reason in (DROP_FIT_ERROR, DROP_INTERNAL) else clip(drop.message, 300)
+            self._log_limited(drop.reason, f"dropped frame {stamp_ns * 1e-9:.3f}: {drop.reason}: {detail}", level)
             return result
         self._last_stamp_ns = stamp_ns
         result.latency["total"] = time.perf_counter() - t_start
@@ -189,7 +226,8 @@ class MessageProcessor:
     def _process(self, msgs: FrameMessages, result: FrameResult) -> None:
         self.check_stamp(result.stamp_ns)
         t = time.perf_counter()
-        frame = to_frame(msgs, self.node.keypoint_format, self.transforms, self.node.extrinsic.camera_frame)
+        frame = to_frame(msgs, self.node.keypoint_format, self.transforms, self.node.extrinsic.camera_frame,
+                         self.stats.keypoints_ignored)
         result.latency["convert"] = time.perf_counter() - t
         lidar_frame = str(msgs.points.header.frame_id)
         T_out = self.transforms.out_from_cam(self.node.output_frame, frame.frame_id, lidar_frame, result.stamp_ns)
@@ -204,17 +242,27 @@ class MessageProcessor:
         fits = fitted.fits
         if not np.allclose(T_out, np.eye(4)):
             fits = [transform_fit(fit, T_out) for fit in fits]
+        fits = self._withhold_non_finite(fits)
         t = time.perf_counter()
         result.outputs = self.outputs.build(fits, result.stamp, result.frame_id)
         result.latency["outputs"] = time.perf_counter() - t
         result.fits = fits
 
+    def _withhold_non_finite(self, fits: list[BodyFit]) -> list[BodyFit]:
+        """The fits without NaN / inf (module docstring); the others are counted and logged."""
+        finite = [fit for fit in fits if _finite(fit)]
+        if len(finite) < len(fits):
+            withheld = sorted({fit.person_id for fit in fits} - {fit.person_id for fit in finite})
+            self.stats.people_dropped[PERSON_NON_FINITE] += len(fits) - len(finite)
+            self._log_limited(PERSON_NON_FINITE, f"withheld the fit of person(s) {withheld}: NaN or infinite "
+                              "values (diverged)")
+        return finite
+
     def _fit(self, frame: Frame) -> FrameFits:
         try:
             fitted = self.frames.fit(frame)
         except Exception as e:  # noqa: BLE001 - a bug in the method must not stop the node
-            detail = "".join(traceback.format_exception(type(e), e, e.__traceback__)[-3:])
-            raise FrameDrop(DROP_FIT_ERROR, f"{type(e).__name__}: {e}\n{detail}") from None
+            raise FrameDrop(DROP_FIT_ERROR, _short_traceback(e, 2)) from None
         for reason, n in fitted.people_dropped.items():
             self.stats.people_dropped[reason] += n
             self._log_limited(f"person.{reason}", f"{n} person(s) not fitted: {reason}", "info")
