@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from smplify3d_ros.body.joints import JOINT_INDEX
-from smplify3d_ros.sim.config import default_sim_config
 from smplify3d_ros.eval.hmr_statistics import hmr_statistics
+from smplify3d_ros.sim.config import default_sim_config
 from smplify3d_ros.sim.hmr import simulate_hmr
 from smplify3d_ros.sim.world import random_people
 

@@ -402,8 +402,10 @@ class BenchScenarioConfig:
     back_facing_prob: float | None
     occlusion_pair_prob: float | None
     fov_margin_deg: float | None
+    missed_chamfer_m: float  # a fit with LiDAR points whose chamfer exceeds this missed them (sensor-dependent)
 
     def __post_init__(self) -> None:
+        require(0.0 < self.missed_chamfer_m <= 2.0, "missed_chamfer_m: must be in (0, 2]")
         require(1 <= self.n_people[0] <= self.n_people[1] <= 20, "n_people: need 1 <= min <= max <= 20")
         _check_range(self.distance_m, "distance_m", 0.5)
         if self.family_weights is not None:
@@ -423,8 +425,7 @@ class BenchConfig:
     tuning_seeds: tuple[int, int]  # first and last seed (inclusive) that tuning may look at
     report_seed_start: int  # reported scenes start here, past every tuning seed
     distance_bands_m: list[float]  # band edges, increasing
-    heading_bands_deg: tuple[float, float]  # facing below the first, side-on up to the second, back beyond
-    missed_chamfer_m: float  # a fit with LiDAR points whose chamfer exceeds this missed them
+    heading_bands_deg: tuple[float, float]  # facing below the first, side-on below the second, back from it
     scenarios: dict[str, BenchScenarioConfig]
 
     def __post_init__(self) -> None:
@@ -436,7 +437,6 @@ class BenchConfig:
                 "distance_bands_m: at least two increasing edges")
         require(0.0 < self.heading_bands_deg[0] < self.heading_bands_deg[1] < 180.0,
                 "heading_bands_deg: need 0 < facing < back < 180")
-        require(0.0 < self.missed_chamfer_m <= 2.0, "missed_chamfer_m: must be in (0, 2]")
         require(len(self.scenarios) > 0, "scenarios: at least one")
 
     def is_tuning_seed(self, seed: int) -> bool:

@@ -51,6 +51,8 @@ class SimPerson:
     vertices: np.ndarray  # (V, 3) float32, m
     keypoints3d: np.ndarray  # (17, 3) float32 COCO-17, m
     joints: np.ndarray  # (J, 3) float32 model joints, m
+    family: str = ""  # pose family (sim.poses)
+    preset: str = ""  # body shape preset (sim.people)
 
 
 @dataclass
@@ -183,7 +185,8 @@ def observe(
     return SimFrame(
         frame=frame,
         point_labels=scan.label,
-        people=[SimPerson(p.person_id, p.params, p.vertices, p.keypoints3d, p.joints) for p in people],
+        people=[SimPerson(p.person_id, p.params, p.vertices, p.keypoints3d, p.joints, p.placement.pose.family,
+                          p.placement.preset) for p in people],
         visible_fraction={
             p.person_id: visible_fraction(
                 scene.ray_scene, camera, p.person_id, p.vertices, cfg.render.visibility_rays
