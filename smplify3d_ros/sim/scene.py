@@ -321,7 +321,8 @@ def move_person(person: PlacedPerson, position: np.ndarray, mount: Mount) -> Pla
 
 def turn_person(person: PlacedPerson, angle: float, mount: Mount, model) -> PlacedPerson:
     """The same body turned by `angle` (rad, counter-clockwise from above) about the vertical through
-    its footprint's centre, so that its footprint circle, and with it every clearance, stays put."""
+    its footprint's centre: it stays inside its footprint circle, so every clearance placement checked
+    against that circle still holds."""
     from smplify3d_ros.geometry import move_body
 
     centre, _ = footprint(vertices_world(person, mount))
