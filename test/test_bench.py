@@ -174,3 +174,16 @@ def test_overrides_become_a_nested_mapping():
     assert cli.overrides_from(args.overrides) == {
         "fitting": {"profiles": {"robot": {"iterations": [4, 10, 4]}}, "seed": 3}
     }
+
+
+def test_seconds_per_person_is_each_persons_share_of_the_fit_call():
+    from smplify3d_ros.eval.bench import report
+
+    def case(pid: int, distance: float) -> methods.Case:
+        return methods.Case("builtin_init_three_stage", "vlp16", 0, pid, distance, 10.0, "walking", "child", 20,
+                            1.0, False, 1.0, 1.0, 1.0, 1.0, 1.0, seconds=1.2, people_in_fit=3)
+
+    cases = [case(0, 2.0), case(1, 5.0), case(2, 9.0)]
+    rows = report.band_rows(cases, "builtin_init_three_stage", "vlp16", type("B", (), {
+        "distance_bands_m": [1.5, 4.0, 8.0, 12.0, 15.0], "heading_bands_deg": (45.0, 135.0)})(), 0.15)
+    assert [r["seconds_per_person"] for r in rows[:4]] == [0.4, 0.4, 0.4, 0.4]  # one fit of 3 people: 1.2 s

@@ -112,6 +112,7 @@ class Case:
     chamfer_m: float | None = None  # the fit's own chamfer to its points (fit.quality.chamfer_m; None: no points)
     value: float | None = None  # the swept parameter of a study
     seconds: float = 0.0  # fit time of the whole scene's people (same for every person of the scene)
+    people_in_fit: int = 1  # people that fit call fitted together: this person's share is seconds / this
 
 
 @dataclass
@@ -281,7 +282,7 @@ def evaluate_scene(
         for obs, ctx, (verts, joints, flags, chamfer) in zip(people, context, bodies, strict=True):
             errors = score(verts, joints, truth[obs.person_id], method.root_aligned)
             cases.append(Case(name, sensor, seed, obs.person_id, **ctx, **errors, flags=flags, chamfer_m=chamfer,
-                              value=value, seconds=seconds))
+                              value=value, seconds=seconds, people_in_fit=len(people)))
     return cases
 
 

@@ -20,7 +20,6 @@ def summarize(cases: Sequence[Case], method: str, sensor: str, **extra: Any) -> 
     def std(key: str) -> float | None:
         return round(float(np.std([getattr(c, key) for c in pick])), 2) if pick else None
 
-    scene_seconds = {(c.scene, c.value): c.seconds for c in pick}  # one fit call per scene
     row = {
         "method": method,
         "sensor": sensor,
@@ -32,7 +31,8 @@ def summarize(cases: Sequence[Case], method: str, sensor: str, **extra: Any) -> 
         "pve_std_mm": std("pve"),
         "mpjpe_std_mm": std("mpjpe"),
         "mpjpe_median_mm": round(float(np.median([c.mpjpe for c in pick])), 2) if pick else None,
-        "seconds_per_person": round(sum(scene_seconds.values()) / len(pick), 3) if pick else None,
+        # one fit call per scene: each person's share of it, so that any subset of people averages right
+        "seconds_per_person": round(float(np.mean([c.seconds / c.people_in_fit for c in pick])), 3) if pick else None,
     }
     row.update(extra)
     return row
