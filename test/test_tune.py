@@ -54,10 +54,10 @@ def test_two_trials_write_a_profile_load_config_accepts(tmp_path, tiny, capsys):
     header = [line for line in text.splitlines() if line.startswith("#")]
     assert any("2 trials" in line and "tuning seeds 0-0" in line for line in header)
     assert any("Report seeds 1000-1000" in line for line in header)
-    assert any("Objective: mean MPJPE" in line for line in header)
+    assert any("Objective: mean MPJPE" in line and "capped at 500 mm" in line for line in header)
     assert "# searched [0.5, 10] log, was 3" in text  # weights.pose: its range and the value it replaced
     printed = capsys.readouterr().out
-    assert "best trial" in printed and "report seeds 1000-1000" in printed
+    assert "best trial" in printed and "report seeds 1000-1000" in printed and "capped" in printed
 
 
 def test_a_journal_resumes_and_a_seeded_search_repeats(tmp_path, tiny):
