@@ -159,7 +159,9 @@ def plot_bands(rows: Sequence[dict[str, Any]], hmr_rows: Sequence[dict[str, Any]
     ax.set_xticks(x, [f"{r['subset']}\n(n={r['n']})" for r in pick], fontsize=8)
     ax.set_ylabel("MPJPE (mm)")
     ax.set_yscale("log")
+    top = max(r["mpjpe_mm"] for r in pick) if pick else 1.0
+    ax.set_ylim(top=top * 4.0)  # room for the legend above the bars
     ax.set_title(title)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", ncol=3)
     ax.grid(axis="y", alpha=0.3, which="both")
     return _save(fig, path)
