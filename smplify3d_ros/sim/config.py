@@ -426,6 +426,7 @@ class BenchConfig:
     report_seed_start: int  # reported scenes start here, past every tuning seed
     distance_bands_m: list[float]  # band edges, increasing
     heading_bands_deg: tuple[float, float]  # facing below the first, side-on below the second, back from it
+    off_mpjpe_mm: float  # a fit this far off the truth is wrong, when the report checks the chamfer's verdict
     scenarios: dict[str, BenchScenarioConfig]
 
     def __post_init__(self) -> None:
@@ -437,6 +438,7 @@ class BenchConfig:
                 "distance_bands_m: at least two increasing edges")
         require(0.0 < self.heading_bands_deg[0] < self.heading_bands_deg[1] < 180.0,
                 "heading_bands_deg: need 0 < facing < back < 180")
+        require(self.off_mpjpe_mm > 0, "off_mpjpe_mm: must be > 0")
         require(len(self.scenarios) > 0, "scenarios: at least one")
 
     def is_tuning_seed(self, seed: int) -> bool:

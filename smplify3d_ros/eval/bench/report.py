@@ -125,6 +125,23 @@ def fit_quality(pick: Sequence[Case], missed_chamfer_m: float) -> dict[str, floa
     }
 
 
+def chamfer_verdict(cases: Sequence[Case], method: str, missed_m: float, off_mm: float) -> dict[str, Any]:
+    """How far the fits' own "missed" verdict (chamfer > `missed_m`) agrees with the truth (MPJPE >
+    `off_mm`), over `method`'s fits that have points."""
+    pick = [c for c in cases if c.method == method and c.chamfer_m is not None]
+    missed = [c.chamfer_m > missed_m for c in pick]
+    off = [c.mpjpe > off_mm for c in pick]
+    both = sum(m and o for m, o in zip(missed, off))
+    return {"method": method, "fits_with_points": len(pick), "missed": sum(missed), "off": sum(off),
+            "missed_and_off": both, "missed_chamfer_m": missed_m, "off_mpjpe_mm": off_mm}
+
+
+def verdict_line(v: dict[str, Any]) -> str:
+    return (f"{v['method']}: {v['missed']} of {v['fits_with_points']} fits with points missed them (chamfer > "
+            f"{v['missed_chamfer_m']:g} m), {v['missed_and_off']} of those are more than {v['off_mpjpe_mm']:g} mm "
+            f"off; of the {v['off']} fits that far off, the chamfer flagged {v['missed_and_off']}")
+
+
 def band_rows(cases: Sequence[Case], method: str, sensor: str, bench: Any, missed_m: float) -> list[dict[str, Any]]:
     """One row for all of `method`'s cases, one per distance band, one per heading band."""
     pick = [c for c in cases if c.method == method and c.sensor == sensor]

@@ -22,7 +22,16 @@ from smplify3d_ros.eval.bench.methods import (
     run_scenes,
 )
 from smplify3d_ros.eval.bench.plots import plot_bands, plot_density, plot_methods, plot_sensors, plot_sweep
-from smplify3d_ros.eval.bench.report import band_rows, band_table, family_rows, markdown_table, summarize, target_lines
+from smplify3d_ros.eval.bench.report import (
+    band_rows,
+    band_table,
+    chamfer_verdict,
+    family_rows,
+    markdown_table,
+    summarize,
+    target_lines,
+    verdict_line,
+)
 
 
 @dataclass(frozen=True)
@@ -124,8 +133,11 @@ def run_main(run: BenchRun, setup_for: Callable[..., Setup], default_distance: t
             tables += ["smplify3d_three_stage with an upstream HMR, by band:", band_table(extra["bands_with_hmr"])]
         tables += [f"People with at least {min_points} LiDAR points (fitting.min_points; the others are fitted "
                    "from the image alone):", markdown_table(subset)]
+    extra["chamfer_verdict"] = [chamfer_verdict(cases, m, missed_m, bench.off_mpjpe_mm)
+                                for m in (ROBOT_METHOD, "smplify3d_three_stage") if m in run.methods]
     plots = _main_plots(run, rows, extra, distance)
-    notes = [coverage_line(coverage)] + target_lines(rows) + [f"(people with LiDAR) {x}" for x in target_lines(subset)]
+    notes = [coverage_line(coverage), *map(verdict_line, extra["chamfer_verdict"])]
+    notes += target_lines(rows) + [f"(people with LiDAR) {x}" for x in target_lines(subset)]
     return Report(rows, cases, "\n\n".join(tables), plots, notes, extra, distance)
 
 
