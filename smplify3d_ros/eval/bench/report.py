@@ -115,10 +115,12 @@ def heading_band(heading_deg: float, bands_deg: Sequence[float]) -> str:
 def fit_quality(pick: Sequence[Case], missed_chamfer_m: float) -> dict[str, float | None]:
     """What the fits say of themselves: mean chamfer (mm) of fits with points, the fraction of those whose
     chamfer exceeds `missed_chamfer_m` (they missed their points), the fraction fitted from the image
-    alone (flag image_only). None where no case has the quantity (methods that do not fit)."""
+    alone (flag image_only), and the median of the people's extracted points. None where no case has the
+    quantity (methods that do not fit)."""
     with_points = [c.chamfer_m for c in pick if c.chamfer_m is not None]
     fitted = [c for c in pick if c.chamfer_m is not None or c.flags]
     return {
+        "points_median": float(np.median([c.num_points for c in pick])) if pick else None,
         "chamfer_mm": round(1000.0 * float(np.mean(with_points)), 1) if with_points else None,
         "missed_fraction": round(float(np.mean(np.array(with_points) > missed_chamfer_m)), 3) if with_points else None,
         "image_only_fraction": round(float(np.mean(["image_only" in c.flags for c in fitted])), 3) if fitted else None,
@@ -172,12 +174,13 @@ def band_table(rows: Sequence[dict[str, Any]]) -> str:
     def pct(x: Any) -> str:
         return "-" if x is None else f"{100.0 * x:.0f} %"
 
-    head = ["subset", "n", "MPJPE mm", "PA-MPJPE mm", "PVE mm", "MPJPE median mm", "chamfer mm",
-            "missed", "image only", "s / person"]
+    head = ["subset", "n", "MPJPE mm", "PA-MPJPE mm", "PVE mm", "MPJPE median mm", "points (median)",
+            "chamfer mm", "missed", "image only", "s / person"]
     lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
     for r in rows:
         lines.append(f"| {r['subset']} | {r['n']} | {num(r['mpjpe_mm'])} | {num(r['pa_mpjpe_mm'])} | "
-                     f"{num(r['pve_mm'])} | {num(r.get('mpjpe_median_mm'))} | {num(r.get('chamfer_mm'))} | "
+                     f"{num(r['pve_mm'])} | {num(r.get('mpjpe_median_mm'))} | {num(r.get('points_median'), 0)} | "
+                     f"{num(r.get('chamfer_mm'))} | "
                      f"{pct(r.get('missed_fraction'))} | {pct(r.get('image_only_fraction'))} | "
                      f"{num(r.get('seconds_per_person'), 2)} |")
     return "\n".join(lines)
