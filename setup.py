@@ -48,7 +48,8 @@ setup(
         "tqdm>=4.60",
         "matplotlib>=3.7",
     ],
-    extras_require={"test": ["pytest>=7", "ruff"]},
+    # `smplify3d tune` (smplify3d_ros/eval/tune.py): a development tool, never needed on the robot
+    extras_require={"test": ["pytest>=7", "ruff"], "bench": ["optuna>=5.0"]},
     python_requires=">=3.10",
     zip_safe=False,
     tests_require=["pytest"],

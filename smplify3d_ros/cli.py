@@ -34,6 +34,7 @@ COMMANDS = {
     "bench-speed": ("smplify3d_ros.eval.bench_speed", "per-person fit time and MPJPE of the profiles"),
     "bench-extract": ("smplify3d_ros.eval.extraction", "precision/recall of person point extraction"),
     "bench-live": ("smplify3d_ros.eval.live", "the node live on a bag at its recorded rate: output rate, latency"),
+    "tune": ("smplify3d_ros.eval.tune", "tune a profile's weights and iterations on the tuning seeds"),
     "smpl-to-npz": ("smplify3d_ros.body.smpl_convert", "convert an SMPL .pkl to .npz (safe to load, no pickle)"),
 }
 

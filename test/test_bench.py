@@ -42,9 +42,75 @@ def test_tiny_run_writes_the_json_schema_and_a_plot(tmp_path, capsys):
     assert rows["hmr_init"]["mpjpe_root_aligned_mm"] == pytest.approx(aligned, abs=0.02)
     assert rows["hmr_init"]["mpjpe_mm"] > rows["hmr_init_root_aligned"]["mpjpe_mm"]
     assert len(doc["cases"]) == len(methods.MAIN_METHODS)
-    assert (tmp_path / "bench_vlp16.png").stat().st_size > 10_000
+    # the headline: the robot path by band; the report seeds by default, the split in the meta
+    meta = doc["meta"]
+    assert meta["scenario"] == "robot" and meta["seed_set"] == "report"
+    assert meta["seeds"] == [1000, 1000] and meta["tuning_seeds"] == [0, 999] and meta["report_seed_start"] == 1000
+    bands = doc["bands"]
+    assert [(r["band"], r["subset"]) for r in bands] == [
+        ("all", "all"), ("distance", "1.5-4 m"), ("distance", "4-8 m"), ("distance", "8-12 m"),
+        ("distance", "12-15 m"), ("heading", "facing"), ("heading", "side-on"), ("heading", "back")]
+    assert all(r["method"] == methods.ROBOT_METHOD for r in bands)
+    assert sum(r["n"] for r in bands if r["band"] == "distance") == bands[0]["n"] == 1
+    assert sum(r["n"] for r in bands if r["band"] == "heading") == 1
+    assert bands[0]["mpjpe_mm"] == rows[methods.ROBOT_METHOD]["mpjpe_mm"]
+    case = next(c for c in doc["cases"] if c["method"] == methods.ROBOT_METHOD)
+    assert 0.0 <= case["heading_deg"] <= 180.0 and case["family"] and case["preset"]
+    if case["chamfer_m"] is not None:  # a fit with points: its chamfer decides "missed"
+        assert bands[0]["missed_fraction"] == float(case["chamfer_m"] > 0.15)
+    assert doc["families"][0]["subset"] == case["family"]
+    assert doc["coverage"]["fitted"] == 1 and doc["coverage"]["in_scene"] >= 1
+    verdict = doc["chamfer_verdict"][0]
+    assert verdict["method"] == methods.ROBOT_METHOD
+    assert verdict["missed_and_off"] <= min(verdict["missed"], verdict["off"])
+    assert (tmp_path / "bench_robot_vlp16.png").stat().st_size > 10_000
+    assert (tmp_path / "bench_robot_vlp16_bands.png").stat().st_size > 10_000
     printed = capsys.readouterr().out
-    assert "| smplify3d_three_stage | VLP-16 |" in printed
+    assert "Robot path (builtin_init_three_stage" in printed
+    assert "With an upstream HMR" in printed and "| smplify3d_three_stage | VLP-16 |" in printed
+    assert "wall time" in printed and "seeds 1000-1000: report" in printed
+
+
+def test_tuning_seeds_are_named_as_such(tmp_path, capsys):
+    out = tmp_path / "tuning.json"
+    args = parse(["--scenes", "1", "--seed", "3", "--people", "1-1", "--methods", methods.ROBOT_METHOD,
+                  "--json", str(out), "--no-plot", "--no-progress", *FAST])  # fmt: skip
+    assert cli.run(args) == 0
+    doc = json.loads(out.read_text())
+    assert doc["meta"]["seed_set"] == "tuning" and [r["method"] for r in doc["rows"]] == [methods.ROBOT_METHOD]
+    captured = capsys.readouterr()
+    assert "include tuning seeds" in captured.err
+    assert "With an upstream HMR" not in captured.out  # no HMR-seeded method was asked for
+
+
+def test_unknown_scenario_and_method_are_errors(capsys):
+    assert cli.run(parse(["--scenario", "moon", "--no-progress"])) == 2
+    assert "unknown scenario 'moon'" in capsys.readouterr().err
+    assert cli.run(parse(["--methods", "magic", "--no-progress"])) == 2
+    assert "unknown methods" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("yaw_deg", "expected"), [(180.0, 0.0), (0.0, 180.0), (90.0, 90.0), (-135.0, 45.0)])
+def test_heading_against_the_camera(yaw_deg, expected):
+    """A body at x = 0, z = 5 m in the camera frame (y down): yaw about the vertical from facing along +z
+    (away from the camera); the heading is measured against the direction back to the camera."""
+    from scipy.spatial.transform import Rotation
+
+    up = np.array([0.0, -1.0, 0.0])
+    # canonical body (x left, y up, z forward) -> camera frame: y up -> -y, facing +z (away)
+    upright = Rotation.from_matrix(np.array([[-1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0]]))
+    root = (Rotation.from_rotvec(np.deg2rad(yaw_deg) * up) * upright).as_rotvec()
+    assert methods.heading_to_camera_deg(root, np.array([0.0, 0.3, 5.0]), up) == pytest.approx(expected, abs=1e-6)
+
+
+def test_band_edges():
+    from smplify3d_ros.eval.bench import report
+
+    edges = [1.5, 4.0, 8.0, 12.0, 15.0]
+    assert [report.distance_band(d, edges) for d in (1.4, 1.5, 3.99, 4.0, 14.0, 15.2)] == [
+        "1.5-4 m", "1.5-4 m", "1.5-4 m", "4-8 m", "12-15 m", "12-15 m"]
+    assert [report.heading_band(h, (45.0, 135.0)) for h in (0.0, 44.9, 45.0, 135.0, 135.1, 180.0)] == [
+        "facing", "facing", "side-on", "back", "back", "back"]
 
 
 def run_study(study: str, tmp_path) -> list[dict]:
@@ -111,3 +177,16 @@ def test_overrides_become_a_nested_mapping():
     assert cli.overrides_from(args.overrides) == {
         "fitting": {"profiles": {"robot": {"iterations": [4, 10, 4]}}, "seed": 3}
     }
+
+
+def test_seconds_per_person_is_each_persons_share_of_the_fit_call():
+    from smplify3d_ros.eval.bench import report
+
+    def case(pid: int, distance: float) -> methods.Case:
+        return methods.Case("builtin_init_three_stage", "vlp16", 0, pid, distance, 10.0, "walking", "child", 20,
+                            1.0, False, 1.0, 1.0, 1.0, 1.0, 1.0, seconds=1.2, people_in_fit=3)
+
+    cases = [case(0, 2.0), case(1, 5.0), case(2, 9.0)]
+    rows = report.band_rows(cases, "builtin_init_three_stage", "vlp16", type("B", (), {
+        "distance_bands_m": [1.5, 4.0, 8.0, 12.0, 15.0], "heading_bands_deg": (45.0, 135.0)})(), 0.15)
+    assert [r["seconds_per_person"] for r in rows[:4]] == [0.4, 0.4, 0.4, 0.4]  # one fit of 3 people: 1.2 s

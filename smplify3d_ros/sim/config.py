@@ -6,7 +6,9 @@ y left, z up); the camera optical frame and the LiDAR frame are placed in it by 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+from typing import Literal
 
 from smplify3d_ros.settings import from_dict, require, section
 from smplify3d_ros.sim.people import SHAPE_PRESETS
@@ -133,6 +135,42 @@ class LidarSensorConfig:
 
 
 @dataclass
+class NonRepetitiveLidarConfig:
+    """A solid-state LiDAR with a non-repetitive scan (Livox-like): every frame lights new directions
+    of a fixed field of view, so the pattern never settles into rings (`sim.lidar`)."""
+
+    pattern: Literal["rosette", "random"]
+    hfov_deg: float
+    vfov_deg: float
+    points_per_second: float
+    rate_hz: float
+    lines: int
+    rosette_hz: tuple[float, float]
+    min_range_m: float
+    max_range_m: float
+    range_noise_m: float
+    angular_noise_deg: float
+    dropout: float
+
+    def __post_init__(self) -> None:
+        require(1.0 <= self.hfov_deg <= 180.0, "hfov_deg: must be in [1, 180]")
+        require(1.0 <= self.vfov_deg <= 120.0, "vfov_deg: must be in [1, 120]")
+        require(self.rate_hz > 0.0, "rate_hz: must be > 0")
+        require(10.0 <= self.points_per_second / self.rate_hz <= 2_000_000,
+                "points_per_second: must give 10 to 2e6 points per frame")
+        require(1 <= self.lines <= 128, "lines: must be in [1, 128]")
+        require(all(f > 0 for f in self.rosette_hz) and self.rosette_hz[0] != self.rosette_hz[1],
+                "rosette_hz: two different positive rates")
+        require(0.0 <= self.min_range_m < self.max_range_m, "min_range_m/max_range_m: need 0 <= min < max")
+        require(0.0 <= self.range_noise_m <= 1.0, "range_noise_m: must be in [0, 1]")
+        require(0.0 <= self.angular_noise_deg <= 5.0, "angular_noise_deg: must be in [0, 5]")
+        require(0.0 <= self.dropout < 1.0, "dropout: must be in [0, 1)")
+
+
+SensorConfig = LidarSensorConfig | NonRepetitiveLidarConfig
+
+
+@dataclass
 class IntensityConfig:
     """LiDAR return intensity: reflectivity per surface class, attenuated by the incidence angle."""
 
@@ -149,11 +187,27 @@ class IntensityConfig:
 
 @dataclass
 class LidarConfig:
-    sensors: dict[str, LidarSensorConfig]
+    sensors: dict[str, LidarSensorConfig]  # spinning (ring) scanners
+    non_repetitive: dict[str, NonRepetitiveLidarConfig]  # solid-state scanners without rings
     intensity: IntensityConfig
 
     def __post_init__(self) -> None:
-        require(len(self.sensors) > 0, "sensors: at least one sensor")
+        require(len(self.sensors) + len(self.non_repetitive) > 0, "sensors: at least one sensor")
+        both = sorted(set(self.sensors) & set(self.non_repetitive))
+        require(not both, f"non_repetitive: {both} already named in sensors")
+
+    @property
+    def names(self) -> list[str]:
+        """Every sensor's name, spinning first."""
+        return [*self.sensors, *self.non_repetitive]
+
+    def sensor(self, name: str) -> SensorConfig:
+        """The sensor of that name, whatever its kind."""
+        if name in self.sensors:
+            return self.sensors[name]
+        if name in self.non_repetitive:
+            return self.non_repetitive[name]
+        raise ValueError(f"unknown LiDAR sensor {name!r}; known: {', '.join(self.names)}")
 
 
 @dataclass
@@ -167,6 +221,8 @@ class SceneConfig:
     occlusion_pair_prob: float
     occlusion_bearing_deg: float
     occlusion_gap_m: tuple[float, float]
+    back_facing_prob: float
+    back_facing_spread_deg: float
     family_weights: dict[str, float]
     ground_half_size_m: float
     wall_height_m: float
@@ -183,6 +239,8 @@ class SceneConfig:
     object_clearance_m: float
     seat_size_m: tuple[float, float]
     carried_box_m: tuple[float, float, float]
+    step_size_m: tuple[float, float]
+    post_radius_m: float
     placement_tries: int
 
     def __post_init__(self) -> None:
@@ -193,6 +251,8 @@ class SceneConfig:
         _check_prob(self.occlusion_pair_prob, "occlusion_pair_prob")
         require(0.0 <= self.occlusion_bearing_deg <= 20.0, "occlusion_bearing_deg: must be in [0, 20]")
         _check_range(self.occlusion_gap_m, "occlusion_gap_m", 0.0)
+        _check_prob(self.back_facing_prob, "back_facing_prob")
+        require(0.0 <= self.back_facing_spread_deg <= 90.0, "back_facing_spread_deg: must be in [0, 90]")
         require(len(self.family_weights) > 0, "family_weights: at least one family")
         require(all(w >= 0 for w in self.family_weights.values()), "family_weights: must be >= 0")
         require(sum(self.family_weights.values()) > 0, "family_weights: must not all be 0")
@@ -211,6 +271,8 @@ class SceneConfig:
         require(self.object_clearance_m >= 0, "object_clearance_m: must be >= 0")
         _check_range(self.seat_size_m, "seat_size_m", 0.1)
         require(all(s > 0 for s in self.carried_box_m), "carried_box_m: sizes must be > 0")
+        require(all(s >= 0.1 for s in self.step_size_m), "step_size_m: sizes must be >= 0.1")
+        require(0.02 <= self.post_radius_m <= 1.0, "post_radius_m: must be in [0.02, 1]")
         require(self.placement_tries >= 1, "placement_tries: must be >= 1")
 
 
@@ -221,6 +283,7 @@ class PeopleConfig:
     preset_weights: dict[str, float]
     phenotype_jitter: float
     pose_variation_scale: float
+    limit_variation: float
 
     def __post_init__(self) -> None:
         require(len(self.preset_weights) > 0, "preset_weights: at least one preset")
@@ -230,6 +293,7 @@ class PeopleConfig:
         require(sum(self.preset_weights.values()) > 0, "preset_weights: must not all be 0")
         require(0.0 <= self.phenotype_jitter <= 0.5, "phenotype_jitter: must be in [0, 0.5]")
         require(0.0 <= self.pose_variation_scale <= 3.0, "pose_variation_scale: must be in [0, 3]")
+        _check_prob(self.limit_variation, "limit_variation")
 
 
 @dataclass
@@ -323,6 +387,65 @@ class SequenceConfig:
 
 
 @dataclass
+class BenchScenarioConfig:
+    """One kind of scene of `smplify3d bench`: the sensors and what varies, on top of `sim.scene` and
+    `sim.people` (a None keeps their value)."""
+
+    sensor: str  # a `sim.lidar` sensor name
+    camera: CameraSimConfig | None  # None: `sim.camera`
+    n_people: tuple[int, int]
+    distance_m: tuple[float, float]
+    walls: bool
+    family_weights: dict[str, float] | None
+    pose_variation_scale: float | None
+    limit_variation: float | None
+    back_facing_prob: float | None
+    occlusion_pair_prob: float | None
+    fov_margin_deg: float | None
+    missed_chamfer_m: float  # a fit with LiDAR points whose chamfer exceeds this missed them (sensor-dependent)
+
+    def __post_init__(self) -> None:
+        require(0.0 < self.missed_chamfer_m <= 2.0, "missed_chamfer_m: must be in (0, 2]")
+        require(1 <= self.n_people[0] <= self.n_people[1] <= 20, "n_people: need 1 <= min <= max <= 20")
+        _check_range(self.distance_m, "distance_m", 0.5)
+        if self.family_weights is not None:
+            require(len(self.family_weights) > 0 and sum(self.family_weights.values()) > 0
+                    and all(w >= 0 for w in self.family_weights.values()),
+                    "family_weights: non-negative, not all 0")
+        for name in ("limit_variation", "back_facing_prob", "occlusion_pair_prob"):
+            value = getattr(self, name)
+            if value is not None:
+                _check_prob(value, name)
+
+
+@dataclass
+class BenchConfig:
+    """What `smplify3d bench` and `smplify3d tune` share: the seed split, the report's bands, scenarios."""
+
+    tuning_seeds: tuple[int, int]  # first and last seed (inclusive) that tuning may look at
+    report_seed_start: int  # reported scenes start here, past every tuning seed
+    distance_bands_m: list[float]  # band edges, increasing
+    heading_bands_deg: tuple[float, float]  # facing below the first, side-on below the second, back from it
+    off_mpjpe_mm: float  # a fit this far off the truth is wrong, when the report checks the chamfer's verdict
+    scenarios: dict[str, BenchScenarioConfig]
+
+    def __post_init__(self) -> None:
+        first, last = self.tuning_seeds
+        require(0 <= first <= last, "tuning_seeds: need 0 <= first <= last")
+        require(self.report_seed_start > last, "report_seed_start: must lie past the last tuning seed")
+        edges = self.distance_bands_m
+        require(len(edges) >= 2 and all(a < b for a, b in zip(edges, edges[1:])),
+                "distance_bands_m: at least two increasing edges")
+        require(0.0 < self.heading_bands_deg[0] < self.heading_bands_deg[1] < 180.0,
+                "heading_bands_deg: need 0 < facing < back < 180")
+        require(self.off_mpjpe_mm > 0, "off_mpjpe_mm: must be > 0")
+        require(len(self.scenarios) > 0, "scenarios: at least one")
+
+    def is_tuning_seed(self, seed: int) -> bool:
+        return self.tuning_seeds[0] <= seed <= self.tuning_seeds[1]
+
+
+@dataclass
 class SimConfig:
     """The simulator section of the configuration."""
 
@@ -336,9 +459,30 @@ class SimConfig:
     detector: DetectorConfig
     hmr: HmrConfig
     sequence: SequenceConfig
+    bench: BenchConfig
 
     def __post_init__(self) -> None:
         require(bool(self.body_model), "body_model: must be a model name")
+        for name, scenario in self.bench.scenarios.items():
+            require(scenario.sensor in self.lidar.names,
+                    f"bench.scenarios.{name}.sensor: unknown {scenario.sensor!r}; known: {self.lidar.names}")
+
+
+def scenario_sim_config(cfg: SimConfig, name: str) -> SimConfig:
+    """`cfg` with a bench scenario's camera, scene and people values in place (its None values keep cfg's)."""
+    if name not in cfg.bench.scenarios:
+        raise ValueError(f"unknown scenario {name!r}; known: {', '.join(cfg.bench.scenarios)}")
+    sc = cfg.bench.scenarios[name]
+
+    def given(**values: object) -> dict[str, object]:
+        return {k: v for k, v in values.items() if v is not None}
+
+    scene = dataclasses.replace(cfg.scene, n_people=sc.n_people, distance_range_m=sc.distance_m, **given(
+        family_weights=sc.family_weights, back_facing_prob=sc.back_facing_prob,
+        occlusion_pair_prob=sc.occlusion_pair_prob, fov_margin_deg=sc.fov_margin_deg))
+    people = dataclasses.replace(cfg.people, **given(
+        pose_variation_scale=sc.pose_variation_scale, limit_variation=sc.limit_variation))
+    return dataclasses.replace(cfg, camera=sc.camera or cfg.camera, scene=scene, people=people)
 
 
 def default_sim_config() -> SimConfig:

@@ -1,8 +1,17 @@
-"""Simulated spinning LiDAR (VLP-16, Ouster OS1): scan pattern, ray casting, CARLA-style noise.
+"""Simulated LiDARs: spinning (VLP-16, Ouster OS1) and non-repetitive solid-state (Livox-like); scan
+patterns, ray casting, CARLA-style noise.
 
-Scan pattern: channels at uniformly spaced elevations; one column of firings every `column_period_s`
+Spinning scan pattern: channels at uniformly spaced elevations; one column of firings every `column_period_s`
 while the head turns at `rate_hz`, so each return's azimuth follows from its firing time (the VLP-16
 fires its 16 lasers one after the other, 2.304 us apart, in the order of `firing_order_deg`).
+
+Non-repetitive pattern (`sim.lidar.non_repetitive`): a fixed field of view in front of the sensor, lit
+along a curve that never repeats, so that a frame has no rings and the next frame fills other gaps.
+`rosette`: each of `lines` emitters sends its beam through two prisms turning in opposite directions at
+`rosette_hz`; the deflection is the mean of two counter-rotating unit phasors, a rosette filling the unit
+disc (densest at its centre and rim), stretched to the field of view's ellipse and turned by a different
+angle per line. Each frame starts at a random moment of the prisms' turn. `random`: directions uniform in
+solid angle over the field of view's rectangle, new every frame. The `ring` field carries the line.
 
 Noise (as CARLA's LiDAR, METHOD.md): Gaussian range noise along the ray, random drop-out of returns;
 plus beam pointing noise: the beam travels along a perturbed direction but the return is reported along
@@ -21,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from smplify3d_ros.camera import transform_points
-from smplify3d_ros.sim.config import IntensityConfig, LidarSensorConfig
+from smplify3d_ros.sim.config import IntensityConfig, LidarSensorConfig, NonRepetitiveLidarConfig, SensorConfig
 from smplify3d_ros.sim.raycast import LABEL_GROUND, LABEL_STATIC, RayScene
 
 
@@ -33,7 +42,7 @@ class ScanPattern:
     azimuth: np.ndarray  # (R,) float64 rad, LiDAR frame, counter-clockwise from x
     ring: np.ndarray  # (R,) uint16 driver ring index
     time: np.ndarray  # (R,) float32 s since the scan's start
-    columns: int
+    columns: int  # firing columns of one revolution (a non-repetitive scan: one per ray)
 
     def directions(self) -> np.ndarray:
         return spherical_to_unit(self.elevation, self.azimuth)
@@ -80,8 +89,48 @@ def firing_slots(sensor: LidarSensorConfig) -> np.ndarray:
     return slots
 
 
-def scan_pattern(sensor: LidarSensorConfig) -> ScanPattern:
-    """The nominal rays of one revolution, ordered by firing time."""
+def scan_pattern(sensor: SensorConfig, rng: np.random.Generator | None = None) -> ScanPattern:
+    """The nominal rays of one revolution (spinning) or frame (non-repetitive, drawn with `rng`), ordered
+    by firing time."""
+    if isinstance(sensor, NonRepetitiveLidarConfig):
+        return non_repetitive_pattern(sensor, rng if rng is not None else np.random.default_rng(0))
+    return spinning_pattern(sensor)
+
+
+def _rosette(sensor: NonRepetitiveLidarConfig, time: np.ndarray, line: np.ndarray,
+             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) in the unit disc: the mean of two counter-rotating phasors, turned per line."""
+    start = rng.uniform(0.0, 3600.0)  # s into the prisms' turn: their rates never bring a frame back
+    w1, w2 = 2.0 * np.pi * np.asarray(sensor.rosette_hz, dtype=np.float64)
+    t = start + time.astype(np.float64)
+    turn = np.pi * line / sensor.lines
+    z = 0.5 * (np.exp(1j * w1 * t) + np.exp(-1j * w2 * t)) * np.exp(1j * turn)
+    return z.real, z.imag
+
+
+def non_repetitive_pattern(sensor: NonRepetitiveLidarConfig, rng: np.random.Generator) -> ScanPattern:
+    """One frame's rays of a solid-state scanner (module docstring), lines firing in turn."""
+    n = round(sensor.points_per_second / sensor.rate_hz)
+    time = np.arange(n, dtype=np.float64) / sensor.points_per_second
+    line = np.arange(n) % sensor.lines
+    half_h, half_v = np.deg2rad(sensor.hfov_deg) / 2.0, np.deg2rad(sensor.vfov_deg) / 2.0
+    if sensor.pattern == "rosette":
+        x, y = _rosette(sensor, time, line, rng)
+        azimuth, elevation = half_h * x, half_v * y
+    else:  # uniform in solid angle: azimuth uniform, sine of the elevation uniform
+        azimuth = rng.uniform(-half_h, half_h, n)
+        elevation = np.arcsin(rng.uniform(-np.sin(half_v), np.sin(half_v), n))
+    return ScanPattern(
+        elevation=elevation,
+        azimuth=azimuth,
+        ring=line.astype(np.uint16),
+        time=time.astype(np.float32),
+        columns=n,
+    )
+
+
+def spinning_pattern(sensor: LidarSensorConfig) -> ScanPattern:
+    """The nominal rays of one revolution of a spinning LiDAR, ordered by firing time."""
     columns = round(1.0 / (sensor.rate_hz * sensor.column_period_s))
     elevations = np.deg2rad(channel_elevations_deg(sensor))
     slots = firing_slots(sensor)
@@ -113,13 +162,13 @@ def _intensity(label: np.ndarray, cos_incidence: np.ndarray, cfg: IntensityConfi
 def simulate_scan(
     scene: RayScene,
     T_scene_lidar: np.ndarray,
-    sensor: LidarSensorConfig,
+    sensor: SensorConfig,
     intensity: IntensityConfig,
     rng: np.random.Generator,
     pattern: ScanPattern | None = None,
 ) -> LidarScan:
-    """Cast one revolution into `scene`; `T_scene_lidar` places the LiDAR in the scene's frame."""
-    pattern = scan_pattern(sensor) if pattern is None else pattern
+    """Cast one revolution (one frame) into `scene`; `T_scene_lidar` places the LiDAR in the scene's frame."""
+    pattern = scan_pattern(sensor, rng) if pattern is None else pattern
     n = len(pattern.time)
     elevation, azimuth = pattern.elevation, pattern.azimuth
     if sensor.angular_noise_deg > 0:

@@ -38,11 +38,19 @@ FAMILIES: tuple[str, ...] = (
     "crouching",
     "sitting",
     "carrying",
+    "kneeling",
+    "hands_on_hips",
+    "arms_crossed",
+    "stepping_up",
+    "leaning",
+    "turning",
 )
 PHASED_FAMILIES = ("walking", "running")  # families with a gait-cycle phase in [0, 1)
 
 PROP_SEAT = "seat"  # the person needs a seat under the pelvis
 PROP_CARRIED_BOX = "carried_box"  # the person holds a box between the hands
+PROP_STEP = "step"  # the person's raised foot stands on a step
+PROP_POST = "post"  # the person leans back against a post
 
 _SIDES = ("left", "right")
 _DEFAULT_SIGMA = 3.0  # deg, variation of every angle a family does not set a spread for
@@ -59,6 +67,7 @@ class PoseSpec:
     lean_sigma_deg: float = 0.0
     phase: float | None = None
     props: tuple[str, ...] = field(default_factory=tuple)
+    side: str | None = None  # the side a one-sided family uses (the raised foot of stepping_up)
     # joints whose flexion absorbs the random part of the lean (legs stay under the body)
     lean_followers: tuple[str, ...] = ("left_hip", "right_hip")
 
@@ -97,6 +106,7 @@ class Pose:
     lean_deg: float
     phase: float | None
     props: tuple[str, ...]
+    side: str | None = None
 
 
 # -- gait tables (percent of the cycle from heel strike, degrees), after normative gait data ----------
@@ -304,6 +314,104 @@ def carrying(rng: np.random.Generator, phase: float | None = None) -> PoseSpec:
     return spec
 
 
+def kneeling(rng: np.random.Generator, phase: float | None = None) -> PoseSpec:
+    """On both knees (thighs upright, shins on the ground) or on one (the other foot planted ahead)."""
+    spec = _new("kneeling", lean_deg=4.0, lean_sigma_deg=4.0)
+    _relaxed_arms(spec)
+    _head_free(spec)
+    spec.both("ankle", -35, 0, 0, sigma=(6, 3, 2))  # toes point back along the ground
+    if rng.random() < 0.5:
+        spec.both("hip", 8, 6, 6, sigma=(6, 5, 3))
+        spec.both("knee", 95, 0, 0, sigma=(6, 2, 1))
+    else:
+        front = _SIDES[int(rng.integers(2))]
+        back = "right" if front == "left" else "left"
+        spec.set(f"{front}_hip", 85, 5, 8, sigma=(8, 5, 3))
+        spec.set(f"{front}_knee", 90, 0, 0, sigma=(8, 2, 1))
+        spec.set(f"{front}_ankle", 5, 0, 0, sigma=(5, 3, 2))
+        spec.set(f"{back}_hip", -5, 5, 4, sigma=(5, 5, 2))
+        spec.set(f"{back}_knee", 100, 0, 0, sigma=(6, 2, 1))
+    return spec
+
+
+def hands_on_hips(rng: np.random.Generator, phase: float | None = None) -> PoseSpec:
+    """Standing, elbows out to the sides, hands resting on the hips."""
+    spec = standing(rng)
+    spec.family = "hands_on_hips"
+    spec.both("shoulder", -10, -55, 40, sigma=(5, 8, 5))  # turned in, so that the bent forearm points to the hip
+    spec.both("elbow", 100, 0, 0, sigma=(8, 5, 2))
+    spec.both("wrist", 0, 0, 0, sigma=5)
+    return spec
+
+
+def arms_crossed(rng: np.random.Generator, phase: float | None = None) -> PoseSpec:
+    """Standing with the forearms folded across the chest, one above the other."""
+    spec = standing(rng)
+    spec.family = "arms_crossed"
+    upper = _SIDES[int(rng.integers(2))]
+    for side in _SIDES:
+        spec.set(f"{side}_shoulder", 30 if side == upper else 20, -80, 12, sigma=(5, 5, 4))
+        spec.set(f"{side}_elbow", 120, 0, 0, sigma=(6, 5, 2))
+        spec.set(f"{side}_wrist", 0, 0, 0, sigma=4)
+    return spec
+
+
+def stepping_up(rng: np.random.Generator, phase: float | None = None) -> PoseSpec:
+    """One foot raised onto a step (a prop under it), the other leg straight, a slight forward lean."""
+    spec = _new("stepping_up", lean_deg=8.0, lean_sigma_deg=3.0, props=(PROP_STEP,))
+    side = _SIDES[int(rng.integers(2))]
+    other = "right" if side == "left" else "left"
+    spec.side = side
+    spec.set(f"{side}_hip", 60, 5, 4, sigma=(6, 4, 2))
+    spec.set(f"{side}_knee", 70, 0, 0, sigma=(6, 2, 1))
+    spec.set(f"{side}_ankle", 10, 0, 0, sigma=(3, 3, 2))
+    spec.set(f"{other}_hip", -5, 5, 3, sigma=(3, 4, 2))
+    spec.set(f"{other}_knee", 5, 0, 0, sigma=(3, 2, 1))
+    spec.set(f"{other}_ankle", 5, 0, 0, sigma=(3, 3, 2))
+    spec.set(f"{side}_shoulder", -15, 0, 8, sigma=(6, 6, 3))  # arms swing against the legs
+    spec.set(f"{other}_shoulder", 20, 0, 8, sigma=(6, 6, 3))
+    spec.both("elbow", 25, 0, 0, sigma=(8, 5, 2))
+    _head_free(spec)
+    return spec
+
+
+def leaning(rng: np.random.Generator, phase: float | None = None) -> PoseSpec:
+    """Leaning back against a post (a prop behind the shoulders): the whole body tilts back as one,
+    feet ahead of the post, arms relaxed or crossed."""
+    spec = _new("leaning", lean_deg=-12.0, lean_sigma_deg=3.0, props=(PROP_POST,), lean_followers=())
+    _standing_legs(spec)
+    if rng.random() < 0.5:
+        _relaxed_arms(spec)
+    else:
+        for side in _SIDES:
+            spec.set(f"{side}_shoulder", 25, -80, 12, sigma=(5, 5, 4))
+            spec.set(f"{side}_elbow", 120, 0, 0, sigma=(6, 5, 2))
+    spec.set("neck", 12, 0, 0, sigma=(5, 10, 4))  # the head comes forward to look level
+    spec.set("head", 0, 0, 0, sigma=(5, 10, 4))
+    return spec
+
+
+def turning(rng: np.random.Generator, phase: float | None = None) -> PoseSpec:
+    """Mid-turn: the spine and head twisted towards one side, one foot pivoting on the other."""
+    spec = _new("turning", lean_sigma_deg=2.0)
+    sign = 1.0 if rng.random() < 0.5 else -1.0  # + turns to the body's left
+    pivot = "left" if sign > 0 else "right"
+    stepping = "right" if sign > 0 else "left"
+    spec.set(f"{pivot}_hip", 0, 25, 4, sigma=(4, 6, 2))  # the pivot leg turns out
+    spec.set(f"{pivot}_knee", 8, 0, 0, sigma=(3, 2, 1))
+    spec.set(f"{stepping}_hip", 20, -15, 10, sigma=(6, 6, 3))  # the other leg steps round
+    spec.set(f"{stepping}_knee", 25, 0, 0, sigma=(6, 2, 1))
+    spec.both("ankle", 0, 0, 0, sigma=(3, 3, 2))
+    for joint in ("spine1", "spine2", "spine3"):
+        spec.set(joint, 0, 12 * sign, 0, sigma=(2, 3, 2))
+    spec.set("neck", 0, 30 * sign, 0, sigma=(5, 8, 3))
+    spec.set("head", 0, 15 * sign, 0, sigma=(5, 8, 3))
+    spec.set(f"{pivot}_shoulder", -15, 0, 10, sigma=(6, 6, 3))
+    spec.set(f"{stepping}_shoulder", 25, 0, 10, sigma=(6, 6, 3))
+    spec.both("elbow", 25, 0, 0, sigma=(8, 5, 2))
+    return spec
+
+
 FAMILY_BUILDERS: dict[str, Callable[[np.random.Generator, float | None], PoseSpec]] = {
     "standing": standing,
     "walking": walking,
@@ -315,6 +423,12 @@ FAMILY_BUILDERS: dict[str, Callable[[np.random.Generator, float | None], PoseSpe
     "crouching": crouching,
     "sitting": sitting,
     "carrying": carrying,
+    "kneeling": kneeling,
+    "hands_on_hips": hands_on_hips,
+    "arms_crossed": arms_crossed,
+    "stepping_up": stepping_up,
+    "leaning": leaning,
+    "turning": turning,
 }
 
 
@@ -408,14 +522,26 @@ def clip_to_limits(model, angles_deg: np.ndarray) -> np.ndarray:
     return np.clip(angles_deg, limits[..., 0], limits[..., 1])
 
 
+def toward_limits(model, angles_deg: np.ndarray, fraction: float, rng: np.random.Generator) -> np.ndarray:
+    """Every angle moved by a uniform random fraction in [-fraction, fraction] of its way to the joint
+    limit on that side: variation that grows with each joint's room and never leaves its range."""
+    limits = _axes_of(model).limits_deg
+    angles = clip_to_limits(model, angles_deg)
+    u = rng.uniform(-fraction, fraction, angles.shape)
+    room = np.where(u > 0, limits[..., 1] - angles, angles - limits[..., 0])
+    return angles + u * room
+
+
 def sample_pose(
     model,
     family: str,
     rng: np.random.Generator,
     phase: float | None = None,
     variation_scale: float = 1.0,
+    limit_variation: float = 0.0,
 ) -> Pose:
-    """One random pose of `family` (a gait phase for walking/running; random when None)."""
+    """One random pose of `family` (a gait phase for walking/running; random when None); with
+    `limit_variation`, every angle also moves towards its joint limits (`toward_limits`)."""
     if family not in FAMILY_BUILDERS:
         raise ValueError(f"unknown pose family {family!r}; known: {', '.join(FAMILIES)}")
     spec = FAMILY_BUILDERS[family](rng, phase)
@@ -424,4 +550,6 @@ def sample_pose(
     for joint in spec.lean_followers:
         angles[JOINT_INDEX[joint], 0] += lean - spec.lean_deg
     angles = clip_to_limits(model, angles)
-    return Pose(family, angles_to_pose(model, angles), angles, lean, spec.phase, spec.props)
+    if limit_variation > 0:  # no draw otherwise: scenes without it stay as they were
+        angles = toward_limits(model, angles, limit_variation, rng)
+    return Pose(family, angles_to_pose(model, angles), angles, lean, spec.phase, spec.props, spec.side)

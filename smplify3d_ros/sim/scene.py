@@ -20,12 +20,15 @@ from smplify3d_ros.body.joints import JOINT_INDEX
 from smplify3d_ros.camera import transform_points
 from smplify3d_ros.keypoints import PART_INDEX
 from smplify3d_ros.sim.config import MountConfig, RenderConfig, SceneConfig
-from smplify3d_ros.sim.poses import PROP_CARRIED_BOX, PROP_SEAT, Pose
+from smplify3d_ros.sim.poses import PROP_CARRIED_BOX, PROP_POST, PROP_SEAT, PROP_STEP, Pose
 from smplify3d_ros.sim.raycast import LABEL_GROUND, LABEL_STATIC, RayScene
 from smplify3d_ros.types import BodyParams
 
 _PELVIS_START_HEIGHT = 1.0  # m, pelvis height before the body is dropped onto the ground
 _SEAT_BEHIND_PELVIS = 1.0 / 3.0  # fraction of a seat's depth behind the hip joints (under the buttocks)
+_SOLE_BAND_M = 0.04  # vertices this close above a foot's lowest one are its sole
+_STEP_BEHIND_HEEL_M = 0.05  # a step reaches this far behind the raised heel; the rest lies ahead
+_POST_MIN_HEIGHT_M = 0.9  # a leaning person's back touches the post above this height
 
 
 # -- the sensor mount ---------------------------------------------------------------------------------
@@ -231,6 +234,10 @@ def prop_objects(person: PlacedPerson, model, mount: Mount, cfg: SceneConfig) ->
         if top > 0.05:
             c = np.array([centre[0], centre[1], top / 2.0])
             objects.append(box_object("seat", c, np.array([width, top, depth]), R_body))
+    if PROP_STEP in props and person.placement.pose.side is not None:
+        objects += _step_under_foot(person, model, verts, forward, left, cfg)
+    if PROP_POST in props:
+        objects.append(_post_behind(person, verts, forward, cfg))
     if PROP_CARRIED_BOX in props:
         joints = transform_points(person.joints.astype(np.float64), mount.T_world_cam)
         lw, rw = joints[JOINT_INDEX["left_wrist"]], joints[JOINT_INDEX["right_wrist"]]
@@ -241,6 +248,34 @@ def prop_objects(person: PlacedPerson, model, mount: Mount, cfg: SceneConfig) ->
             box_object("carried_box", centre, np.array([width_box, height_box, depth_box]), R_body)
         )
     return objects
+
+
+def _step_under_foot(person: PlacedPerson, model, verts: np.ndarray, forward: np.ndarray, left: np.ndarray,
+                     cfg: SceneConfig) -> list[SceneObject]:
+    """A step whose top carries the raised foot's sole, reaching ahead of it (none if the foot is low)."""
+    foot = verts[_vertex_parts(model) == PART_INDEX[f"{person.placement.pose.side}_lower_leg"]]
+    top = float(foot[:, 2].min())
+    if top < 0.05:
+        return []
+    sole = foot[foot[:, 2] < top + _SOLE_BAND_M]
+    heel = float((sole[:, :2] @ forward[:2]).min())
+    width, depth = cfg.step_size_m
+    along = heel - _STEP_BEHIND_HEEL_M + depth / 2.0
+    across = float(sole[:, :2].mean(axis=0) @ left[:2])
+    centre = along * forward[:2] + across * left[:2]
+    R_body = np.stack([left, np.array([0.0, 0.0, 1.0]), forward], axis=1)
+    return [box_object("step", np.array([centre[0], centre[1], top / 2.0]), np.array([width, top, depth]), R_body)]
+
+
+def _post_behind(person: PlacedPerson, verts: np.ndarray, forward: np.ndarray, cfg: SceneConfig) -> SceneObject:
+    """A vertical post touching the back of a leaning person (above `_POST_MIN_HEIGHT_M`)."""
+    high = verts[verts[:, 2] > _POST_MIN_HEIGHT_M]
+    back = float((high[:, :2] @ forward[:2]).min())
+    radius = cfg.post_radius_m
+    centre_line = float(high[:, :2].mean(axis=0) @ np.array([-forward[1], forward[0]]))
+    side = np.array([-forward[1], forward[0]])
+    centre = (back - radius) * forward[:2] + centre_line * side
+    return pillar_object(centre, radius, cfg.pillar_height_m)
 
 
 _VERTEX_PART_CACHE: dict[int, np.ndarray] = {}
@@ -282,6 +317,35 @@ def move_person(person: PlacedPerson, position: np.ndarray, mount: Mount) -> Pla
         (person.joints + delta).astype(np.float32),
         (person.keypoints3d + delta).astype(np.float32),
     )
+
+
+def turn_person(person: PlacedPerson, angle: float, mount: Mount, model) -> PlacedPerson:
+    """The same body turned by `angle` (rad, counter-clockwise from above) about the vertical through
+    its footprint's centre: it stays inside its footprint circle, so every clearance placement checked
+    against that circle still holds."""
+    from smplify3d_ros.geometry import move_body
+
+    centre, _ = footprint(vertices_world(person, mount))
+    c, s = np.cos(angle), np.sin(angle)
+    T_world = np.eye(4)
+    T_world[:2, :2] = [[c, -s], [s, c]]
+    T_world[:2, 3] = centre - T_world[:2, :2] @ centre
+    T = mount.T_cam_world @ T_world @ mount.T_world_cam
+    params = person.params.copy()
+    dtype = torch.get_default_dtype()
+    with torch.no_grad():
+        rotation_centre = model.rotation_center(torch.as_tensor(params.shape[None], dtype=dtype),
+                                                torch.as_tensor(params.transl[None], dtype=dtype))[0]
+    params.root_orient, params.transl, _ = move_body(params.root_orient, params.transl,
+                                                     rotation_centre.double().numpy(), T)
+    pl = person.placement
+    placement = PersonPlacement(pl.person_id, pl.preset, pl.shape, pl.pose,
+                                T_world[:2, :2] @ pl.position + T_world[:2, 3], pl.heading + angle)
+
+    def moved(points: np.ndarray) -> np.ndarray:
+        return transform_points(points.astype(np.float64), T).astype(np.float32)
+
+    return PlacedPerson(placement, params, moved(person.vertices), moved(person.joints), moved(person.keypoints3d))
 
 
 # -- random layouts -----------------------------------------------------------------------------------

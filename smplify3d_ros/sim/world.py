@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from smplify3d_ros.sim.camera import make_camera, render, visible_fraction
-from smplify3d_ros.sim.config import ScenarioConfig, SimConfig
+from smplify3d_ros.sim.config import ScenarioConfig, SimConfig, scenario_sim_config
 from smplify3d_ros.sim.detector import detect
 from smplify3d_ros.sim.hmr import simulate_hmr
 from smplify3d_ros.sim.lidar import simulate_scan
@@ -36,6 +36,7 @@ from smplify3d_ros.sim.scene import (
     random_objects,
     room_for,
     room_walls,
+    turn_person,
     vertices_world,
 )
 from smplify3d_ros.types import BodyParams, Frame
@@ -50,6 +51,8 @@ class SimPerson:
     vertices: np.ndarray  # (V, 3) float32, m
     keypoints3d: np.ndarray  # (17, 3) float32 COCO-17, m
     joints: np.ndarray  # (J, 3) float32 model joints, m
+    family: str = ""  # pose family (sim.poses)
+    preset: str = ""  # body shape preset (sim.people)
 
 
 @dataclass
@@ -104,12 +107,25 @@ def random_people(
     for pid in range(n_people):
         family = _choose_family(rng, cfg, families)
         preset, shape = sample_shape(rng, cfg.people, model.shape_names)
-        pose = sample_pose(model, family, rng, variation_scale=cfg.people.pose_variation_scale)
+        pose = sample_pose(model, family, rng, variation_scale=cfg.people.pose_variation_scale,
+                           limit_variation=cfg.people.limit_variation)
         heading = float(rng.uniform(-np.pi, np.pi))
         placements.append(PersonPlacement(pid, preset, shape, pose, np.zeros(2), heading))
     posed = pose_people(model, placements, mount)
     half_fov = np.deg2rad(cfg.camera.hfov_deg) / 2.0
-    return mount, place_people(rng, posed, mount, cfg.scene, tuple(distance_range), half_fov)
+    placed = place_people(rng, posed, mount, cfg.scene, tuple(distance_range), half_fov)
+    if cfg.scene.back_facing_prob > 0:  # no draw otherwise: scenes without it stay as they were
+        placed = [_face_away(rng, p, mount, model, cfg) if rng.random() < cfg.scene.back_facing_prob else p
+                  for p in placed]
+    return mount, placed
+
+
+def _face_away(rng: np.random.Generator, person: PlacedPerson, mount: Mount, model, cfg: SimConfig) -> PlacedPerson:
+    """The person turned to face away from the camera, within `back_facing_spread_deg` of its ray."""
+    bearing = float(np.arctan2(person.placement.position[1], person.placement.position[0]))
+    spread = np.deg2rad(cfg.scene.back_facing_spread_deg)
+    target = bearing + rng.uniform(-spread, spread)
+    return turn_person(person, target - person.placement.heading, mount, model)
 
 
 def static_objects(
@@ -142,14 +158,11 @@ def observe(
     rng: np.random.Generator, model, cfg: SimConfig, scene: Scene, sensor: str, stamp_ns: int
 ) -> SimFrame:
     """Run the sensors, the detector and the HMR model on an assembled scene."""
-    if sensor not in cfg.lidar.sensors:
-        raise ValueError(f"unknown LiDAR sensor {sensor!r}; known: {', '.join(cfg.lidar.sensors)}")
+    lidar = cfg.lidar.sensor(sensor)  # unknown names fail here, before any rendering
     camera = make_camera(cfg.camera)
     mount = scene.mount
     rendering = render(scene.ray_scene, camera, scene.face_colors, cfg.render, mount.T_world_cam)
-    scan = simulate_scan(
-        scene.ray_scene, mount.T_cam_lidar, cfg.lidar.sensors[sensor], cfg.lidar.intensity, rng
-    )
+    scan = simulate_scan(scene.ray_scene, mount.T_cam_lidar, lidar, cfg.lidar.intensity, rng)
     people = scene.people
     detections = detect(
         rng, [(p.person_id, p.keypoints3d, p.vertices) for p in people], rendering, camera, cfg.detector
@@ -172,7 +185,8 @@ def observe(
     return SimFrame(
         frame=frame,
         point_labels=scan.label,
-        people=[SimPerson(p.person_id, p.params, p.vertices, p.keypoints3d, p.joints) for p in people],
+        people=[SimPerson(p.person_id, p.params, p.vertices, p.keypoints3d, p.joints, p.placement.pose.family,
+                          p.placement.preset) for p in people],
         visible_fraction={
             p.person_id: visible_fraction(
                 scene.ray_scene, camera, p.person_id, p.vertices, cfg.render.visibility_rays
@@ -209,6 +223,23 @@ def simulate_scene(
     objects = static_objects(rng, cfg, model, mount, people, walls)
     scene = assemble(rng, model, mount, people, objects, cfg.render)
     return observe(rng, model, cfg, scene, sensor, stamp_ns=0)
+
+
+def simulate_scenario(
+    seed: int,
+    cfg: SimConfig,
+    scenario: str,
+    sensor: str | None = None,
+    n_people: int | None = None,
+    distance_range: tuple[float, float] | None = None,
+) -> SimFrame:
+    """One random frame of a bench scenario (`cfg.bench.scenarios`): its camera, families, headings and
+    distances on top of `cfg`; `sensor`, `n_people` and `distance_range` override the scenario's."""
+    sc = cfg.bench.scenarios.get(scenario)
+    if sc is None:
+        raise ValueError(f"unknown scenario {scenario!r}; known: {', '.join(cfg.bench.scenarios)}")
+    return simulate_scene(seed, scenario_sim_config(cfg, scenario), sensor or sc.sensor, n_people,
+                          distance_range, walls=sc.walls)
 
 
 # -- sequences ----------------------------------------------------------------------------------------

@@ -8,6 +8,7 @@ import json
 import sys
 import time
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -60,28 +61,27 @@ def merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--sensor",
-        default="vlp16",
-        help="simulated LiDAR: vlp16 (default), ouster32, ouster64, ouster128 (or os1_64, ...)",
+        "--scenario", default=None,
+        help="scenes (sim.bench.scenarios): robot (default: the Jackal's camera and VLP-16, 1.5-15 m, every pose "
+        "family, any heading), outdoor_crowd (3 MP camera, Livox-like LiDAR, 5-10 people at 6-15 m), lab (3-8 m, "
+        "the studies' default)",
+    )
+    parser.add_argument(
+        "--sensor", default=None,
+        help="simulated LiDAR (default: the scenario's): vlp16, ouster32, ouster64, ouster128 (or os1_64, ...), livox",
     )
     parser.add_argument("--scenes", type=int, default=40, help="number of seeded scenes (default 40)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the first scene")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="seed of the first scene (default: sim.bench.report_seed_start, 1000: the report "
+                        "seeds; seeds 0-999 are for tuning)")
+    parser.add_argument("--people", type=lambda s: _pair(s, int), default=None, metavar="MIN-MAX",
+                        help="people per scene (default: the scenario's)")
+    parser.add_argument("--distance", type=lambda s: _pair(s, float), default=None, metavar="MIN,MAX",
+                        help="people's distance from the camera, m (default: the scenario's; density study 2,20)")
+    parser.add_argument("--methods", type=lambda s: s.split(","), default=None, metavar="A,B",
+                        help=f"main-table methods (default: all: {','.join(MAIN_METHODS)})")
     parser.add_argument(
-        "--people",
-        type=lambda s: _pair(s, int),
-        default=(1, 3),
-        metavar="MIN-MAX",
-        help="people per scene (default 1-3)",
-    )
-    parser.add_argument(
-        "--distance",
-        type=lambda s: _pair(s, float),
-        default=None,
-        metavar="MIN,MAX",
-        help="people's distance from the camera, m (default 3,8; density study 2,20)",
-    )
-    parser.add_argument(
-        "--study", choices=STUDIES, default=None, help="run a study instead of the main table"
+        "--study", choices=STUDIES, default=None, help="run a study instead of the main table (scenario lab)"
     )
     parser.add_argument("--json", type=Path, default=None, help="write the rows (and per-person cases) here")
     parser.add_argument("--plot-dir", type=Path, default=DEFAULT_OUT,
@@ -107,15 +107,51 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+@dataclass
+class Plan:
+    """A bench run's choices once the scenario's defaults are filled in."""
+
+    run: BenchRun
+    seed_set: str  # "report", "tuning" or "mixed": which side of sim.bench's split the seeds are on
+    bench: Any  # sim.config.BenchConfig
+
+
+def plan(args: argparse.Namespace, base: dict[str, Any]) -> Plan:
+    """The run's scenario, sensor, seeds and methods (ValueError: unknown names)."""
+    from smplify3d_ros.sim.config import load_sim_config
+
+    sim = load_sim_config(args.params, {"sim": base["sim"]} if "sim" in base else None)
+    name = args.scenario or ("lab" if args.study else "robot")
+    if name not in sim.bench.scenarios:
+        raise ValueError(f"unknown scenario {name!r}; known: {', '.join(sim.bench.scenarios)}")
+    scenario = sim.bench.scenarios[name]
+    sensor = resolve_sensor(args.sensor or scenario.sensor)
+    if sensor not in sim.lidar.names:
+        raise ValueError(f"sensor {sensor!r} is not in sim.lidar; known: {', '.join(sim.lidar.names)}")
+    methods = tuple(args.methods or MAIN_METHODS)
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"unknown methods {unknown}; known: {', '.join(METHODS)}")
+    first = sim.bench.report_seed_start if args.seed is None else args.seed
+    seeds = range(first, first + args.scenes)
+    tuning = [sim.bench.is_tuning_seed(s) for s in seeds]
+    seed_set = "tuning" if all(tuning) else "mixed" if any(tuning) else "report"
+    run = BenchRun(name, sensor, seeds, args.people or scenario.n_people, args.distance,
+                   None if args.no_plot else args.plot_dir, progress=not args.no_progress, methods=methods)
+    return Plan(run, seed_set, sim.bench)
+
+
 def run(args: argparse.Namespace) -> int:
+    base = overrides_from(args.overrides)
     try:
-        sensor = resolve_sensor(args.sensor)
+        p = plan(args, base)
     except ValueError as e:
         print(f"smplify3d bench: {e}", file=sys.stderr)
         return 2
-    bench = BenchRun(sensor, range(args.seed, args.seed + args.scenes), args.people, args.distance,
-                     None if args.no_plot else args.plot_dir, progress=not args.no_progress)
-    base = overrides_from(args.overrides)
+    if p.seed_set != "report":
+        print(f"smplify3d bench: note: seeds {p.run.seeds[0]}-{p.run.seeds[-1]} include tuning seeds "
+              f"{p.bench.tuning_seeds[0]}-{p.bench.tuning_seeds[1]}; report figures come from seeds >= "
+              f"{p.bench.report_seed_start}", file=sys.stderr)
     schemes = {METHODS[m].scheme for m in (*MAIN_METHODS, *ABLATION_METHODS)}
     cache: dict[str, Setup] = {}
     profiles: dict[str, str | None] = {}
@@ -130,23 +166,37 @@ def run(args: argparse.Namespace) -> int:
         return cache[key]
 
     start = time.perf_counter()
-    report = run_study(args.study, bench, setup_for) if args.study else run_main(bench, setup_for)
+    default_distance = p.bench.scenarios[p.run.scenario].distance_m
+    report = (run_study(args.study, p.run, setup_for, default_distance) if args.study
+              else run_main(p.run, setup_for, default_distance))
     elapsed = time.perf_counter() - start
     print(report.table)
     for line in report.notes:
         print(line)
     for path in report.plots:
         print(f"plot: {path}")
-    print(f"{len(report.cases)} person-method cases in {elapsed:.0f} s")
+    people = len({(c.scene, c.person_id) for c in report.cases})
+    print(f"wall time {elapsed:.0f} s: {len(p.run.seeds)} scenes, {people} people, {len(report.cases)} "
+          f"person-method cases (scenario {p.run.scenario}, seeds {p.run.seeds[0]}-{p.run.seeds[-1]}: {p.seed_set})")
     if args.json is not None:
-        meta = {
-            "study": args.study, "sensor": sensor, "scenes": args.scenes, "seed": args.seed,
-            "people": list(args.people), "distance_m": list(report.distance), "profiles": profiles,
-            "overrides": base, "fitting": to_dict(next(iter(cache.values())).config.fitting) if cache else None,
-            "code": code_version(), "seconds": round(elapsed, 1),
-        }
-        write_json(args.json, report, meta)
+        write_json(args.json, report, _meta(args, p, report, profiles, base, cache, elapsed))
     return 0
+
+
+def _meta(args: argparse.Namespace, p: Plan, report: Report, profiles: dict[str, str | None],
+          base: dict[str, Any], cache: dict[str, Setup], elapsed: float) -> dict[str, Any]:
+    setup = next(iter(cache.values()), None)
+    return {
+        "study": args.study, "scenario": p.run.scenario, "sensor": p.run.sensor, "scenes": args.scenes,
+        "seed": p.run.seeds[0], "seeds": [p.run.seeds[0], p.run.seeds[-1]], "seed_set": p.seed_set,
+        "tuning_seeds": list(p.bench.tuning_seeds), "report_seed_start": p.bench.report_seed_start,
+        "people": list(p.run.people), "distance_m": list(report.distance), "methods": list(p.run.methods),
+        "profiles": profiles, "overrides": base,
+        "scenario_config": to_dict(p.bench.scenarios[p.run.scenario]),
+        "bench_config": {k: v for k, v in to_dict(p.bench).items() if k != "scenarios"},
+        "fitting": to_dict(setup.config.fitting) if setup else None,
+        "code": code_version(), "seconds": round(elapsed, 1),
+    }
 
 
 def write_json(path: Path, report: Report, meta: dict[str, Any]) -> None:

@@ -20,7 +20,10 @@ from smplify3d_ros.eval import metrics
 from smplify3d_ros.fitting.options import FitOptions
 
 SENSOR_ALIASES = {"vlp16": "vlp16", "ouster32": "os1_32", "ouster64": "os1_64", "ouster128": "os1_128"}
-SENSOR_LABELS = {"vlp16": "VLP-16", "os1_32": "Ouster-32", "os1_64": "Ouster-64", "os1_128": "Ouster-128"}
+SENSOR_LABELS = {"vlp16": "VLP-16", "os1_32": "Ouster-32", "os1_64": "Ouster-64", "os1_128": "Ouster-128",
+                 "livox": "Livox-like"}
+SPINNING_SENSORS = ("vlp16", "os1_32", "os1_64", "os1_128")  # the sensors and density studies' sensors
+ROBOT_METHOD = "builtin_init_three_stage"  # the robot path: no image HMR upstream, the built-in initializer
 
 # Targets of the project (three-stage MPJPE / init+ICP MPJPE at 3-8 m) and the thesis's figures.
 TARGET_RATIO = {"os1_64": 0.55, "vlp16": 0.65}
@@ -94,6 +97,9 @@ class Case:
     scene: int  # the scene's seed
     person_id: int
     distance_m: float  # horizontal distance camera -> true hip midpoint
+    heading_deg: float  # true body heading against the direction to the camera: 0 facing it, 180 back to it
+    family: str  # true pose family
+    preset: str  # true body shape preset
     num_points: int  # the person's extracted LiDAR points
     density: float  # thesis Eq. 9: extracted points per m² of the true body's projected area
     occluded_parts: bool  # some body part's keypoints are below the image visibility threshold
@@ -103,8 +109,10 @@ class Case:
     pa_mpjpe: float
     mpjpe_root_aligned: float
     flags: list[str] = field(default_factory=list)
+    chamfer_m: float | None = None  # the fit's own chamfer to its points (fit.quality.chamfer_m; None: no points)
     value: float | None = None  # the swept parameter of a study
     seconds: float = 0.0  # fit time of the whole scene's people (same for every person of the scene)
+    people_in_fit: int = 1  # people that fit call fitted together: this person's share is seconds / this
 
 
 @dataclass
@@ -173,11 +181,28 @@ def person_context(sim: Any, obs: Any, truth: Any, setup: Setup) -> dict[str, An
     threshold = setup.config.fitting.visibility.keypoint_conf_image
     return {
         "distance_m": float(np.hypot(hips[0], hips[2])),
+        "heading_deg": heading_to_camera_deg(truth.params.root_orient, hips, mount.up_cam),
+        "family": truth.family,
+        "preset": truth.preset,
         "num_points": len(obs.points),
         "density": float(density),
         "occluded_parts": bool(occluded_parts(obs.keypoints[:, 2], threshold).any()),
         "visible_fraction": float(sim.visible_fraction.get(obs.person_id, float("nan"))),
     }
+
+
+def heading_to_camera_deg(root_orient: np.ndarray, position: np.ndarray, up: np.ndarray) -> float:
+    """Angle (deg, 0-180) between a body's forward direction and the direction from the body to the
+    camera, both horizontal: 0 faces the camera, 90 is side-on, 180 shows the back. Canonical body axes
+    (types.BodyParams): z forward."""
+    from scipy.spatial.transform import Rotation
+
+    up = up / np.linalg.norm(up)
+    forward = Rotation.from_rotvec(root_orient).as_matrix()[:, 2]
+    to_camera = -np.asarray(position, np.float64)
+    a, b = forward - (forward @ up) * up, to_camera - (to_camera @ up) * up
+    cos = a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12)
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 def miscalibrated(T_cam_lidar: np.ndarray, error: float, seed: int) -> np.ndarray:
@@ -194,6 +219,23 @@ def miscalibrated(T_cam_lidar: np.ndarray, error: float, seed: int) -> np.ndarra
     return T_cam_lidar @ delta
 
 
+@dataclass
+class Coverage:
+    """Who of the scenes' people the scores cover: the rest never reached a fit."""
+
+    in_scene: int = 0  # people placed in the scenes
+    detected: int = 0  # ... that the detector model found
+    fitted: int = 0  # ... that the frame path kept and fitted (the people the cases score)
+    dropped: dict[str, int] = field(default_factory=dict)  # frame_fitter's reasons -> people left out
+
+    def add(self, sim: Any, observed: Any, fitted: int) -> None:
+        self.in_scene += len(sim.people)
+        self.detected += len(sim.frame.keypoints)
+        self.fitted += fitted
+        for reason, n in observed.people_dropped.items():
+            self.dropped[reason] = self.dropped.get(reason, 0) + int(n)
+
+
 def evaluate_scene(
     sim: Any,
     seed: int,
@@ -202,9 +244,11 @@ def evaluate_scene(
     methods: Sequence[str],
     value: float | None = None,
     calibration_error: float = 0.0,
+    coverage: Coverage | None = None,
 ) -> list[Case]:
     """Cases of every method for every detected person of one simulated scene; with `calibration_error`
-    (see `miscalibrated`) the pipeline uses a wrong LiDAR-to-camera transform."""
+    (see `miscalibrated`) the pipeline uses a wrong LiDAR-to-camera transform. `coverage` counts who
+    the cases leave out."""
     from smplify3d_ros.frame_fitter import FrameFitter
 
     frame = sim.frame
@@ -213,6 +257,8 @@ def evaluate_scene(
     observed = FrameFitter(setup.config, setup.fitters[None]).observe(frame)
     truth = {p.person_id: p for p in sim.people}
     people = [p for p in observed.observations if p.person_id in truth and p.person_id in sim.hmr_init]
+    if coverage is not None:
+        coverage.add(sim, observed, len(people))
     if not people:
         return []
     context = [person_context(sim, obs, truth[obs.person_id], setup) for obs in people]
@@ -227,63 +273,64 @@ def evaluate_scene(
             ]
             fitter = FrameFitter(setup.config, setup.fitters[method.scheme])
             fits = fitter.fit_observed(dataclasses.replace(observed, observations=observations), method.options).fits
-            bodies = [
-                (f.vertices.astype(np.float64), f.joints.astype(np.float64), sorted(f.flags)) for f in fits
-            ]
+            bodies = [(f.vertices.astype(np.float64), f.joints.astype(np.float64), sorted(f.flags),
+                       _finite(f.quality.chamfer_m)) for f in fits]
         else:
-            bodies = [(b.vertices, b.joints, []) for b in setup.model.posed([sim.hmr_init[p.person_id]
-                                                                             for p in people])]
+            bodies = [(b.vertices, b.joints, [], None) for b in setup.model.posed([sim.hmr_init[p.person_id]
+                                                                                   for p in people])]
         seconds = time.perf_counter() - start
-        for obs, ctx, (verts, joints, flags) in zip(people, context, bodies, strict=True):
+        for obs, ctx, (verts, joints, flags, chamfer) in zip(people, context, bodies, strict=True):
             errors = score(verts, joints, truth[obs.person_id], method.root_aligned)
-            cases.append(
-                Case(
-                    name,
-                    sensor,
-                    seed,
-                    obs.person_id,
-                    **ctx,
-                    **errors,
-                    flags=flags,
-                    value=value,
-                    seconds=seconds,
-                )
-            )
+            cases.append(Case(name, sensor, seed, obs.person_id, **ctx, **errors, flags=flags, chamfer_m=chamfer,
+                              value=value, seconds=seconds, people_in_fit=len(people)))
     return cases
 
 
-def simulate(
-    seed: int, setup: Setup, sensor: str, n_people: tuple[int, int], distance: tuple[float, float]
-) -> Any:
-    from smplify3d_ros.sim.world import simulate_scene
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
-    rng = np.random.default_rng([seed, 7])
+
+def simulate(
+    seed: int, setup: Setup, scenario: str, sensor: str, n_people: tuple[int, int], distance: tuple[float, float]
+) -> Any:
+    """One scene of a bench scenario (`sim.bench.scenarios`) with the run's sensor, people and distances."""
+    from smplify3d_ros.sim.world import simulate_scenario
+
+    rng = np.random.default_rng([seed, 7])  # its own stream: the scene's people do not shift the scene
     n = int(rng.integers(n_people[0], n_people[1] + 1))
-    return simulate_scene(seed, setup.sim, sensor=sensor, n_people=n, distance_range=distance)
+    return simulate_scenario(seed, setup.sim, scenario, sensor=sensor, n_people=n, distance_range=distance)
+
+
+@dataclass
+class SceneSet:
+    """Which scenes a bench run scores: a scenario, its sensor, seeds, people per scene and distances."""
+
+    scenario: str  # key of `sim.bench.scenarios`
+    sensor: str  # key of `sim.lidar` sensors
+    seeds: Sequence[int]
+    people: tuple[int, int]
+    distance: tuple[float, float]
 
 
 def run_scenes(
     setup: Setup,
-    sensor: str,
-    seeds: Sequence[int],
+    scenes: SceneSet,
     methods: Sequence[str],
-    n_people: tuple[int, int],
-    distance: tuple[float, float],
     value: float | None = None,
     progress: bool = True,
     desc: str = "",
     calibration_error: float = 0.0,
+    coverage: Coverage | None = None,
 ) -> list[Case]:
     from tqdm import tqdm
 
     cases: list[Case] = []
-    bar = tqdm(seeds, desc=desc or sensor, unit="scene", disable=not progress, file=sys.stderr)
+    bar = tqdm(scenes.seeds, desc=desc or scenes.sensor, unit="scene", disable=not progress, file=sys.stderr)
     for seed in bar:
-        sim = simulate(seed, setup, sensor, n_people, distance)
-        cases += evaluate_scene(sim, seed, sensor, setup, methods, value, calibration_error)
+        sim = simulate(seed, setup, scenes.scenario, scenes.sensor, scenes.people, scenes.distance)
+        cases += evaluate_scene(sim, seed, scenes.sensor, setup, methods, value, calibration_error, coverage)
         bar.set_postfix(people=len({(c.scene, c.person_id) for c in cases}))
     return cases
-
 
 
 def profile_for(sensor: str, profile: str | None) -> str | None:
@@ -298,6 +345,7 @@ def profile_for(sensor: str, profile: str | None) -> str | None:
 
 
 def resolve_sensor(name: str) -> str:
+    """A sensor's `sim.lidar` key from its name or alias (ouster64 -> os1_64)."""
     if name in SENSOR_LABELS:
         return name
     if name in SENSOR_ALIASES:

@@ -139,3 +139,29 @@ def _save(fig: Any, path: Path) -> Path:
     _pyplot().close(fig)
     return path
 
+
+
+def plot_bands(rows: Sequence[dict[str, Any]], hmr_rows: Sequence[dict[str, Any]], path: Path, title: str) -> Path:
+    """Mean and median MPJPE of the robot path per band (distance, then heading); the three-stage fit
+    with an upstream HMR as ticks, for scale."""
+    plt = _pyplot()
+    pick = [r for r in rows if r["band"] != "all" and r["n"]]
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    x = np.arange(len(pick))
+    for k, (key, label) in enumerate((("mpjpe_mm", "MPJPE mean"), ("mpjpe_median_mm", "MPJPE median"))):
+        bars = ax.bar(x + (k - 0.5) * 0.38, [r[key] for r in pick], 0.38, label=f"robot path: {label}")
+        ax.bar_label(bars, fmt="%.0f", fontsize=7)
+    by = {(r["band"], r["subset"]): r for r in hmr_rows}
+    hmr = [by.get((r["band"], r["subset"]), {}).get("mpjpe_median_mm") for r in pick]
+    if any(v is not None for v in hmr):
+        ax.plot(x, [np.nan if v is None else v for v in hmr], "k_", markersize=16, markeredgewidth=2,
+                label="three-stage with an upstream HMR: median")
+    ax.set_xticks(x, [f"{r['subset']}\n(n={r['n']})" for r in pick], fontsize=8)
+    ax.set_ylabel("MPJPE (mm)")
+    ax.set_yscale("log")
+    top = max(r["mpjpe_mm"] for r in pick) if pick else 1.0
+    ax.set_ylim(top=top * 4.0)  # room for the legend above the bars
+    ax.set_title(title)
+    ax.legend(fontsize=8, loc="upper left", ncol=3)
+    ax.grid(axis="y", alpha=0.3, which="both")
+    return _save(fig, path)

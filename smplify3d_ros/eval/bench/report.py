@@ -20,7 +20,6 @@ def summarize(cases: Sequence[Case], method: str, sensor: str, **extra: Any) -> 
     def std(key: str) -> float | None:
         return round(float(np.std([getattr(c, key) for c in pick])), 2) if pick else None
 
-    scene_seconds = {(c.scene, c.value): c.seconds for c in pick}  # one fit call per scene
     row = {
         "method": method,
         "sensor": sensor,
@@ -32,7 +31,8 @@ def summarize(cases: Sequence[Case], method: str, sensor: str, **extra: Any) -> 
         "pve_std_mm": std("pve"),
         "mpjpe_std_mm": std("mpjpe"),
         "mpjpe_median_mm": round(float(np.median([c.mpjpe for c in pick])), 2) if pick else None,
-        "seconds_per_person": round(sum(scene_seconds.values()) / len(pick), 3) if pick else None,
+        # one fit call per scene: each person's share of it, so that any subset of people averages right
+        "seconds_per_person": round(float(np.mean([c.seconds / c.people_in_fit for c in pick])), 3) if pick else None,
     }
     row.update(extra)
     return row
@@ -89,3 +89,98 @@ def target_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
         )
     return lines
 
+
+
+# -- the robot path's report: bands of distance and heading, pose families, fit quality ------------------
+HEADING_BANDS = ("facing", "side-on", "back")
+
+
+def distance_bands(edges: Sequence[float]) -> list[tuple[str, float, float]]:
+    """(label, low, high) per band of `edges` (m)."""
+    return [(f"{lo:g}-{hi:g} m", lo, hi) for lo, hi in zip(edges[:-1], edges[1:])]
+
+
+def distance_band(distance: float, edges: Sequence[float]) -> str:
+    """The band of a distance; people just outside the edges (a turned body's pelvis moves a few cm)
+    count in the nearest band."""
+    k = int(np.clip(np.searchsorted(edges, distance, side="right") - 1, 0, len(edges) - 2))
+    return distance_bands(edges)[k][0]
+
+
+def heading_band(heading_deg: float, bands_deg: Sequence[float]) -> str:
+    """facing below bands_deg[0], side-on below bands_deg[1], back from there (true heading vs the camera)."""
+    return HEADING_BANDS[int(np.searchsorted(bands_deg, heading_deg, side="right"))]
+
+
+def fit_quality(pick: Sequence[Case], missed_chamfer_m: float) -> dict[str, float | None]:
+    """What the fits say of themselves: mean chamfer (mm) of fits with points, the fraction of those whose
+    chamfer exceeds `missed_chamfer_m` (they missed their points), the fraction fitted from the image
+    alone (flag image_only), and the median of the people's extracted points. None where no case has the
+    quantity (methods that do not fit)."""
+    with_points = [c.chamfer_m for c in pick if c.chamfer_m is not None]
+    fitted = [c for c in pick if c.chamfer_m is not None or c.flags]
+    return {
+        "points_median": float(np.median([c.num_points for c in pick])) if pick else None,
+        "chamfer_mm": round(1000.0 * float(np.mean(with_points)), 1) if with_points else None,
+        "missed_fraction": round(float(np.mean(np.array(with_points) > missed_chamfer_m)), 3) if with_points else None,
+        "image_only_fraction": round(float(np.mean(["image_only" in c.flags for c in fitted])), 3) if fitted else None,
+    }
+
+
+def chamfer_verdict(cases: Sequence[Case], method: str, missed_m: float, off_mm: float) -> dict[str, Any]:
+    """How far the fits' own "missed" verdict (chamfer > `missed_m`) agrees with the truth (MPJPE >
+    `off_mm`), over `method`'s fits that have points."""
+    pick = [c for c in cases if c.method == method and c.chamfer_m is not None]
+    missed = [c.chamfer_m > missed_m for c in pick]
+    off = [c.mpjpe > off_mm for c in pick]
+    both = sum(m and o for m, o in zip(missed, off))
+    return {"method": method, "fits_with_points": len(pick), "missed": sum(missed), "off": sum(off),
+            "missed_and_off": both, "missed_chamfer_m": missed_m, "off_mpjpe_mm": off_mm}
+
+
+def verdict_line(v: dict[str, Any]) -> str:
+    return (f"{v['method']}: {v['missed']} of {v['fits_with_points']} fits with points missed them (chamfer > "
+            f"{v['missed_chamfer_m']:g} m), {v['missed_and_off']} of those are more than {v['off_mpjpe_mm']:g} mm "
+            f"off; of the {v['off']} fits that far off, the chamfer flagged {v['missed_and_off']}")
+
+
+def band_rows(cases: Sequence[Case], method: str, sensor: str, bench: Any, missed_m: float) -> list[dict[str, Any]]:
+    """One row for all of `method`'s cases, one per distance band, one per heading band."""
+    pick = [c for c in cases if c.method == method and c.sensor == sensor]
+    groups: list[tuple[str, str, list[Case]]] = [("all", "all", pick)]
+    edges = bench.distance_bands_m
+    for label, _, _ in distance_bands(edges):
+        groups.append(("distance", label, [c for c in pick if distance_band(c.distance_m, edges) == label]))
+    for label in HEADING_BANDS:
+        groups.append(("heading", label,
+                       [c for c in pick if heading_band(c.heading_deg, bench.heading_bands_deg) == label]))
+    return [summarize(group, method, sensor, band=kind, subset=label, **fit_quality(group, missed_m))
+            for kind, label, group in groups]
+
+
+def family_rows(cases: Sequence[Case], method: str, sensor: str, missed_m: float) -> list[dict[str, Any]]:
+    """One row per true pose family (sorted by name)."""
+    pick = [c for c in cases if c.method == method and c.sensor == sensor]
+    return [summarize(group, method, sensor, band="family", subset=family, **fit_quality(group, missed_m))
+            for family in sorted({c.family for c in pick})
+            for group in [[c for c in pick if c.family == family]]]
+
+
+def band_table(rows: Sequence[dict[str, Any]]) -> str:
+    """Markdown: one line per band row (`band_rows`, `family_rows`)."""
+    def num(x: Any, digits: int = 1) -> str:
+        return "-" if x is None else f"{x:.{digits}f}"
+
+    def pct(x: Any) -> str:
+        return "-" if x is None else f"{100.0 * x:.0f} %"
+
+    head = ["subset", "n", "MPJPE mm", "PA-MPJPE mm", "PVE mm", "MPJPE median mm", "points (median)",
+            "chamfer mm", "missed", "image only", "s / person"]
+    lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
+    for r in rows:
+        lines.append(f"| {r['subset']} | {r['n']} | {num(r['mpjpe_mm'])} | {num(r['pa_mpjpe_mm'])} | "
+                     f"{num(r['pve_mm'])} | {num(r.get('mpjpe_median_mm'))} | {num(r.get('points_median'), 0)} | "
+                     f"{num(r.get('chamfer_mm'))} | "
+                     f"{pct(r.get('missed_fraction'))} | {pct(r.get('image_only_fraction'))} | "
+                     f"{num(r.get('seconds_per_person'), 2)} |")
+    return "\n".join(lines)
