@@ -130,7 +130,7 @@ def _show(value: Any) -> str:
     return clip(_REPR.repr(value))
 
 
-def _load(text: str | bytes) -> Any:
+def load_document(text: str | bytes) -> Any:
     """json.loads with its cost bounded: size and nesting are checked first (json recurses per level)."""
     if isinstance(text, (bytes, bytearray, memoryview)):
         data = bytes(text)
@@ -290,7 +290,14 @@ def bodies_json_to_params(
     nanosecond for float seconds. Limits and ranges: BODIES_SCHEMA.md. Quality, joints3d and flags are
     not needed for BodyParams and are not checked. Raises BodiesError (a ValueError) naming what is wrong.
     """
-    doc = _load(text)
+    return document_to_params(load_document(text), joint_names, shape_size=shape_size)
+
+
+def document_to_params(
+    doc: Any, joint_names: Sequence[str], *, shape_size: int | None = None
+) -> tuple[int, str, dict[int, BodyParams]]:
+    """`bodies_json_to_params` of a document already read with `load_document` (readers of documents
+    with more keys, e.g. ground truth with vertices, parse once)."""
     stamp_ns, frame_id = _header(doc)
     entries = doc.get("bodies")
     if not isinstance(entries, list):

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from msg_adapters.bodies import SCHEMA, VERSION, bodies_json_to_params, body_to_dict
+from msg_adapters.bodies import SCHEMA, VERSION, BodiesError, body_to_dict, document_to_params, load_document
 from msg_adapters.factory import split_stamp, stamp_to_ns
 from smplify3d_ros.keypoints import COCO17_NAMES
 from smplify3d_ros.types import BodyParams
@@ -66,13 +66,13 @@ def truth_document(frame: TruthFrame, joint_names: list[str]) -> str:
 def parse_truth_document(text: str | bytes) -> TruthFrame:
     """A `/ground_truth/bodies` document -> TruthFrame (geometry as the document has it). Raises
     msg_adapters.BodiesError (a ValueError) for a malformed document."""
-    try:
-        doc = json.loads(text)
-        first = doc["bodies"][0] if doc.get("bodies") else {}
-        joint_names = list(first["pose"]) if isinstance(first.get("pose"), dict) else []
-    except (ValueError, RecursionError, AttributeError, TypeError, KeyError):
-        joint_names = []  # the validating parser says what is wrong
-    stamp, frame_id, params = bodies_json_to_params(text, joint_names)
+    doc = load_document(text)
+    if not isinstance(doc, dict):
+        raise BodiesError(f"ground-truth document must be a JSON object, got {type(doc).__name__}")
+    entries = doc.get("bodies") or []
+    first = entries[0] if isinstance(entries, list) and entries and isinstance(entries[0], dict) else {}
+    joint_names = list(first["pose"]) if isinstance(first.get("pose"), dict) else []  # the document's model
+    stamp, frame_id, params = document_to_params(doc, joint_names)
     bodies = []
     for entry in doc["bodies"]:
         pid = int(entry["id"])
