@@ -15,11 +15,13 @@ validated like any configuration (errors name the key).
 
 from __future__ import annotations
 
+import array
+import difflib
 import re
 import sys
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -27,18 +29,19 @@ from typing import Any
 import numpy as np
 from rclpy.node import Node
 
+from msg_adapters import clip
 from msg_adapters.factory import RclpyFactory
 from smplify3d_ros.config import Config, ConfigError, load_config, params_dir, resolve_profile, to_dict
-from smplify3d_ros.runtime.config import NodeConfig, load_node_config
+from smplify3d_ros.runtime.config import NodeConfig, load_node_config, parameter_range
 from smplify3d_ros.runtime.messages import FrameMessages
 from smplify3d_ros.runtime.outputs import DIAGNOSTICS_TYPE, NODE_NAME, OUTPUT_TYPES, OUTPUTS
 from smplify3d_ros.runtime.processor import MessageProcessor
-from smplify3d_ros.runtime.stats import DiagnosticsReporter
+from smplify3d_ros.runtime.stats import DiagnosticsReporter, InputCheck, InputMonitor, LogLimiter, input_level
 from smplify3d_ros.runtime.sync import make_synchronizer, sync_values
 from smplify3d_ros.runtime.transforms import Transforms, transform_msg_matrix
 
-FITTING_PARAMETERS = ("fitting.body.model", "fitting.profile", "fitting.device")
-CORE_PARAMETER_SECTIONS = ("people",)  # core sections declared whole as ROS parameters
+CORE_PARAMETER_SECTIONS = ("fitting", "lidar", "people")  # core sections declared whole as ROS parameters
+RCLPY_PARAMETERS = {"use_sim_time", "start_type_description_service"}  # declared by rclpy's Node itself
 
 
 # -- parameters -------------------------------------------------------------------------------------------
@@ -83,10 +86,8 @@ def unflatten(values: dict[str, Any]) -> dict[str, Any]:
 
 
 def parameter_defaults(config: Config, node: NodeConfig) -> dict[str, Any]:
-    """ROS parameter name -> value: the node section's keys, and the core keys exposed to ROS."""
+    """ROS parameter name -> value: every key of the node section and of the core sections."""
     values = flatten(to_dict(node))
-    fitting = flatten(to_dict(config.fitting), "fitting.")
-    values.update({name: fitting[name] for name in FITTING_PARAMETERS})
     for name in CORE_PARAMETER_SECTIONS:
         values.update(flatten(to_dict(getattr(config, name)), f"{name}."))
     return values
@@ -95,18 +96,71 @@ def parameter_defaults(config: Config, node: NodeConfig) -> dict[str, Any]:
 def parameter_descriptions() -> dict[str, str]:
     base = params_dir() / "base"
     out = yaml_comments(base / "node.yaml")
-    for name in ("fitting", *CORE_PARAMETER_SECTIONS):
-        out.update({f"{name}.{k}": v for k, v in yaml_comments(base / f"{name}.yaml").items()})
+    for name in CORE_PARAMETER_SECTIONS:
+        path = base / f"{name}.yaml"
+        comments = yaml_comments(path)
+        out.update({f"{name}.{k}": v for k, v in comments.items()})
     return out
 
 
 def overrides_from_parameters(values: dict[str, Any]) -> dict[str, Any]:
-    """ROS parameter values -> a `load_sections` overrides mapping (sections fitting, people, node)."""
-    core = ("fitting", *CORE_PARAMETER_SECTIONS)
+    """ROS parameter values -> a `load_sections` overrides mapping (the core sections and node)."""
+    core = CORE_PARAMETER_SECTIONS
     out: dict[str, Any] = {"node": unflatten({k: v for k, v in values.items() if k.split(".")[0] not in core})}
     for name in core:
         out[name] = unflatten({k[len(name) + 1:]: v for k, v in values.items() if k.split(".")[0] == name})
     return out
+
+
+def coerce_override(value: Any, default: Any) -> Any:
+    """A ROS parameter override in the type of its default where that loses nothing: `-p sync.slop_s:=1`
+    parses as an integer, and rclpy would refuse it for a double parameter."""
+    if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(default, list) and default and all(isinstance(v, float) for v in default):
+        items = list(value) if isinstance(value, (list, tuple, array.array)) else None
+        if items is not None and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items):
+            return [float(v) for v in items]
+    return value
+
+
+def descriptor_for(name: str, default: Any, description: str) -> Any:
+    """A read-only ParameterDescriptor with the key's comment and, for numbers, its range."""
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    descriptor = ParameterDescriptor(description=description, read_only=True)
+    bounds = parameter_range(name)
+    if bounds is None or isinstance(default, bool):
+        return descriptor
+    low, high = bounds
+    if isinstance(default, float):
+        descriptor.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high))]
+    elif isinstance(default, int):  # step 0: no step constraint
+        descriptor.integer_range = [IntegerRange(from_value=_int64(low), to_value=_int64(high), step=0)]
+    return descriptor
+
+
+def _int64(value: float) -> int:
+    """An IntegerRange bound (int64): infinite bounds become the int64 limits."""
+    return int(max(min(value, 2**63 - 1), -(2**63)))
+
+
+def unknown_parameter_warning(unknown: list[str], known: list[str]) -> str:
+    """One log line naming parameters the node does not have, with the nearest known names."""
+    parts = []
+    for name in sorted(unknown):
+        close = difflib.get_close_matches(name, known, n=1, cutoff=0.75)
+        parts.append(clip(name, 80) + (f" (did you mean {close[0]}?)" if close else ""))
+    return "unknown parameter(s), ignored: " + ", ".join(parts)
+
+
+def input_qos(cfg: Any) -> Any:
+    """rclpy QoSProfile of one input's `qos.<name>` settings (keep-last history, volatile)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    reliability = ReliabilityPolicy.RELIABLE if cfg.reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=cfg.depth, reliability=reliability,
+                      durability=DurabilityPolicy.VOLATILE)
 
 
 # -- the node ---------------------------------------------------------------------------------------------
@@ -149,7 +203,9 @@ class Smplify3dNode(Node):
     node's fitting configuration); other keyword arguments go to rclpy's Node (`parameter_overrides`)."""
 
     def __init__(self, fitter: Any = None, **kwargs: Any) -> None:
-        super().__init__(NODE_NAME, **kwargs)
+        # every -p / --params-file entry is declared first, so that names the node does not have are seen
+        # (and warned about) instead of silently ignored; _load_config re-declares the known ones typed
+        super().__init__(NODE_NAME, automatically_declare_parameters_from_overrides=True, **kwargs)
         self.config, self.node_config = self._load_config()
         self.factory = RclpyFactory()
         node_cfg = self.node_config
@@ -170,8 +226,8 @@ class Smplify3dNode(Node):
         self._stopping = threading.Event()
         self.worker_errors = 0
         self._inputs: list[tuple[str, str]] = []  # (name, topic)
-        self._received: dict[str, int] = {}
-        self._last_rates: tuple[float, dict[str, int]] = (time.monotonic(), {})
+        self._logs = LogLimiter(self.get_logger())
+        self.qos_incompatible: Counter = Counter()  # publishers per input whose QoS cannot match ours
         self._subscribe()
         self._worker = threading.Thread(target=self._work, name="smplify3d_fitting", daemon=True)
         self._worker.start()
@@ -181,29 +237,42 @@ class Smplify3dNode(Node):
             + f"; sync {type(self.sync).__name__}")
 
     # -- set-up -------------------------------------------------------------------------------------------
+    def _take_overrides(self) -> dict[str, Any]:
+        """Name -> value of every parameter override (command line, params files, `parameter_overrides`),
+        undeclared again so that `_load_config` can declare the node's own with their types and ranges."""
+        overrides = {}
+        for name, parameter in self.get_parameters_by_prefix("").items():
+            if name not in RCLPY_PARAMETERS:
+                overrides[name] = parameter.value
+                self.undeclare_parameter(name)
+        return overrides
+
     def _load_config(self) -> tuple[Config, NodeConfig]:
         from rcl_interfaces.msg import ParameterDescriptor
 
-        default_profile = "jackal_vlp16"
-        profile = self.declare_parameter(
-            "params_file", default_profile,
-            ParameterDescriptor(description="params profile name (params/<name>.yaml) or path to a profile YAML",
-                                read_only=True)).value
+        overrides = self._take_overrides()
+        profile = overrides.pop("params_file", "jackal_vlp16")
+        self.declare_parameter("params_file", profile, ParameterDescriptor(
+            description="params profile name (params/<name>.yaml) or path to a profile YAML", read_only=True))
         try:
             resolve_profile(profile)
-            config, node = load_config(profile), load_node_config(profile)
+            defaults = parameter_defaults(load_config(profile), load_node_config(profile))
         except ConfigError as e:
-            raise ConfigError(f"params_file {profile!r}: {e}") from None
+            raise ConfigError(f"params_file {clip(profile)!r}: {e}") from None
+        values = {name: coerce_override(overrides.pop(name, default), default) for name, default in defaults.items()}
+        # validated before declaring: a bad value is a configuration error that names the key and the rule
+        sections = overrides_from_parameters(values)
+        config, node = load_config(profile, sections), load_node_config(profile, sections)
         descriptions = parameter_descriptions()
-        values = {}
-        for name, default in parameter_defaults(config, node).items():
-            descriptor = ParameterDescriptor(description=descriptions.get(name, ""), read_only=True)
+        for name, value in values.items():
             try:
-                values[name] = self.declare_parameter(name, default, descriptor).value
-            except Exception as e:  # noqa: BLE001 - rclpy raises several types for a bad override
-                raise ConfigError(f"parameter {name!r}: {e}") from None
-        overrides = overrides_from_parameters(values)
-        return load_config(profile, overrides), load_node_config(profile, overrides)
+                self.declare_parameter(name, value, descriptor_for(name, defaults[name], descriptions.get(name, "")),
+                                       ignore_override=True)
+            except Exception as e:  # noqa: BLE001 - rclpy raises several types for a bad value
+                raise ConfigError(f"parameter {name!r}: {clip(e)}") from None
+        if overrides:
+            self.get_logger().warning(unknown_parameter_warning(list(overrides), list(defaults)))
+        return config, node
 
     def _transforms(self) -> Transforms:
         ext = self.node_config.extrinsic
@@ -231,49 +300,67 @@ class Smplify3dNode(Node):
             return None
         return transform_msg_matrix(t)
 
-    def _subscribe(self) -> None:
-        from rclpy.qos import qos_profile_sensor_data
-
-        cfg = self.node_config
-        topics = cfg.topics
-        msg = self.factory.message_class
+    def _synchronized_inputs(self) -> list[tuple[str, str, type]]:
+        """(name, topic, message class) of the synchronized inputs, in the synchronizer's order."""
+        topics, msg = self.node_config.topics, self.factory.message_class
         inputs: list[tuple[str, str, type]] = []
         if topics.image_topic:
             image_type = "sensor_msgs/msg/CompressedImage" if topics.compressed else "sensor_msgs/msg/Image"
             inputs.append(("image", topics.image_topic, msg(image_type)))
-        inputs += [
+        return inputs + [
             ("camera_info", topics.camera_info, msg("sensor_msgs/msg/CameraInfo")),
             ("points", topics.points, msg("sensor_msgs/msg/PointCloud2")),
             ("keypoints", topics.keypoints, msg("sensor_msgs/msg/PointCloud2")),
         ]
+
+    def _subscribe(self) -> None:
+        cfg = self.node_config
+        inputs = self._synchronized_inputs()
         self._inputs = [(name, topic) for name, topic, _ in inputs]
-        self._received = {name: 0 for name, _ in self._inputs}
+        if cfg.topics.init_bodies:
+            self._inputs.append(("init_bodies", cfg.topics.init_bodies))
+        self.monitor = InputMonitor([name for name, _ in self._inputs], cfg.diagnostics.rate_window_s)
         names = [name for name, _, _ in inputs]
+        self.sync_names = names
         self.sync = make_synchronizer(len(inputs), cfg.sync.slop_s, cfg.sync.queue_size,
                                       partial(self._on_synced, names), cfg.sync.use_message_filters,
                                       self.get_logger())
-        self._subscriptions_in = [
-            self.create_subscription(cls, topic, partial(self._on_input, i, name), qos_profile_sensor_data)
-            for i, (name, topic, cls) in enumerate(inputs)
-        ]
-        if topics.init_bodies:
-            self._received["init_bodies"] = 0
-            self._inputs.append(("init_bodies", topics.init_bodies))
-            self._init_sub = self.create_subscription(
-                msg("std_msgs/msg/String"), topics.init_bodies, self._on_init_bodies, 10)
+        self._subscriptions_in = [self._subscription(name, topic, cls, partial(self._on_input, i))
+                                  for i, (name, topic, cls) in enumerate(inputs)]
+        if cfg.topics.init_bodies:
+            self._subscriptions_in.append(self._subscription(
+                "init_bodies", cfg.topics.init_bodies, self.factory.message_class("std_msgs/msg/String"),
+                self.processor.add_init_bodies))
+
+    def _subscription(self, name: str, topic: str, cls: type, handle: Any) -> Any:
+        """A subscription with the input's QoS (`qos.<name>`) whose callback never raises (a bad message is
+        counted under the input's name and logged, rate-limited)."""
+        from rclpy.event_handler import SubscriptionEventCallbacks
+
+        events = SubscriptionEventCallbacks(incompatible_qos=partial(self._on_incompatible_qos, name, topic))
+        return self.create_subscription(cls, topic, partial(self._on_message, name, handle),
+                                        input_qos(getattr(self.node_config.qos, name)), event_callbacks=events)
 
     # -- callbacks (keep short: count, hand off) ----------------------------------------------------------
-    def _on_input(self, index: int, name: str, msg: Any) -> None:
-        self._received[name] += 1
+    def _on_message(self, name: str, handle: Any, msg: Any) -> None:
+        self.monitor.arrived(name)
         try:
-            self.sync.add(index, msg)
-        except Exception as e:  # noqa: BLE001 - a message without a usable header must not stop spinning
-            self.processor.stats.drops["bad_stamp"] += 1
-            self.get_logger().warning(f"{name}: dropped a message without a usable stamp ({type(e).__name__})")
+            handle(msg)
+        except Exception as e:  # noqa: BLE001 - a bad message must never stop spinning
+            self.monitor.failed(name)
+            self._logs.warning(f"bad.{name}", f"{name}: dropped a message that could not be handled: "
+                               f"{type(e).__name__}: {clip(e)}")
 
-    def _on_init_bodies(self, msg: Any) -> None:
-        self._received["init_bodies"] += 1
-        self.processor.add_init_bodies(msg)
+    def _on_input(self, index: int, msg: Any) -> None:
+        self.sync.add(index, msg)  # raises for a message without a usable header: counted by _on_message
+
+    def _on_incompatible_qos(self, name: str, topic: str, event: Any) -> None:
+        self.qos_incompatible[name] += 1
+        qos = getattr(self.node_config.qos, name)
+        policy = getattr(getattr(event, "last_policy_kind", None), "name", "?")
+        self.get_logger().warning(
+            f"{topic}: a publisher offers a QoS incompatible with qos.{name} ({qos.reliability}, policy {policy}): "
+            f"no messages from it. A best_effort publisher needs qos.{name}.reliability:=best_effort")
 
     def _on_synced(self, names: list[str], *msgs: Any) -> None:
         by_name = dict(zip(names, msgs, strict=True))
@@ -311,17 +398,29 @@ class Smplify3dNode(Node):
                 raise
 
     # -- diagnostics --------------------------------------------------------------------------------------
-    def input_rates(self) -> dict[str, float]:
-        now = time.monotonic()
-        last_t, last = self._last_rates
-        counts = dict(self._received)
-        dt = max(now - last_t, 1e-9)
-        self._last_rates = (now, counts)
-        return {name: (n - last.get(name, 0)) / dt for name, n in counts.items()}
+    def input_statuses(self, now: float) -> list[tuple[str, str, str, dict]]:
+        """(name, level, message, values) of every input (`stats.input_level`)."""
+        d = self.node_config.diagnostics
+        return [(name, *input_level(self.monitor, name, InputCheck(
+            topic, getattr(d.expected_hz, name), d.rate_tolerance, d.stale_after_s), now))
+            for name, topic in self._inputs]
 
-    def diagnostic_values(self) -> dict[str, Any]:
-        values: dict[str, Any] = {f"rate_hz.{name}": rate for name, rate in self.input_rates().items()}
-        values.update({f"received.{name}": n for name, n in self._received.items()})
+    def no_frame_reason(self, now: float) -> str | None:
+        """Why no frame can be built now (a synchronized input silent), or None."""
+        stale = self.node_config.diagnostics.stale_after_s
+        silent = [(name, self.monitor.silent_s(name, now)) for name in self.sync_names]
+        silent = [(name, s) for name, s in silent if s >= stale]
+        if not silent:
+            return None
+        return ", ".join(f"{name} silent for {s:.1f} s" for name, s in silent)
+
+    def diagnostic_values(self, now: float | None = None) -> dict[str, Any]:
+        now = time.monotonic() if now is None else now
+        monitor = self.monitor
+        values: dict[str, Any] = {f"rate_hz.{name}": monitor.rate_hz(name, now) for name, _ in self._inputs}
+        values.update({f"received.{name}": n for name, n in monitor.received.items()})
+        values.update({f"bad_messages.{name}": n for name, n in sorted(monitor.errors.items())})
+        values.update({f"qos_incompatible.{name}": n for name, n in sorted(self.qos_incompatible.items())})
         values.update(sync_values(self.sync))
         values["queue.dropped_stale"] = self._queue.dropped
         values["worker_errors"] = self.worker_errors
@@ -330,7 +429,9 @@ class Smplify3dNode(Node):
         return values
 
     def _publish_diagnostics(self) -> None:
-        msg = self._reporter.message(self.get_clock().now().to_msg(), self.diagnostic_values(), self.factory)
+        now = time.monotonic()
+        msg = self._reporter.message(self.get_clock().now().to_msg(), self.diagnostic_values(now), self.factory,
+                                     inputs=self.input_statuses(now), no_frame=self.no_frame_reason(now))
         self._publish(self._diagnostics_pub, msg)
 
     # -- shutdown -----------------------------------------------------------------------------------------

@@ -88,7 +88,7 @@ class MessageProcessor:
         self.transforms = transforms or Transforms(node.extrinsic, log=self.log)
         self.outputs = OutputBuilder(node.publish, self.fitter.faces_np, self.factory)
         self.keep_frames = keep_frames
-        self.stats = ProcessorStats()
+        self.stats = ProcessorStats(latency_window=node.diagnostics.latency_window)
         self._last_stamp_ns: int | None = None
         self._init_docs: deque[tuple[int, str, dict[int, BodyParams]]] = deque(maxlen=50)
         self._lock = threading.Lock()
