@@ -38,7 +38,13 @@ from smplify3d_ros.runtime.outputs import DIAGNOSTICS_TYPE, NODE_NAME, OUTPUT_TY
 from smplify3d_ros.runtime.processor import MessageProcessor
 from smplify3d_ros.runtime.stats import DiagnosticsReporter, InputCheck, InputMonitor, LogLimiter, input_level
 from smplify3d_ros.runtime.sync import make_synchronizer, sync_values
-from smplify3d_ros.runtime.transforms import Transforms, transform_msg_matrix
+from smplify3d_ros.runtime.transforms import (
+    TF_STATIC_TOPIC,
+    Transforms,
+    TransformUnavailable,
+    extrinsic_tf_message,
+    transform_msg_matrix,
+)
 
 CORE_PARAMETER_SECTIONS = ("fitting", "lidar", "people")  # core sections declared whole as ROS parameters
 RCLPY_PARAMETERS = {"use_sim_time", "start_type_description_service"}  # declared by rclpy's Node itself
@@ -154,6 +160,18 @@ def unknown_parameter_warning(unknown: list[str], known: list[str]) -> str:
     return "unknown parameter(s), ignored: " + ", ".join(parts)
 
 
+def camera_frame_parent(buffer: Any, frame: str) -> str | None:
+    """The TF parent of `frame` in a tf2_ros Buffer (None: TF does not know the frame)."""
+    import yaml
+
+    try:
+        frames = yaml.safe_load(buffer.all_frames_as_yaml()) or {}
+    except Exception:  # noqa: BLE001 - an unreadable dump means: unknown
+        return None
+    entry = frames.get(frame) if isinstance(frames, dict) else None
+    return str(entry.get("parent")) if isinstance(entry, dict) and entry.get("parent") else None
+
+
 def input_qos(cfg: Any) -> Any:
     """rclpy QoSProfile of one input's `qos.<name>` settings (keep-last history, volatile)."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -229,6 +247,7 @@ class Smplify3dNode(Node):
         self._logs = LogLimiter(self.get_logger())
         self.qos_incompatible: Counter = Counter()  # publishers per input whose QoS cannot match ours
         self._subscribe()
+        self._start_extrinsic_tf()
         self._worker = threading.Thread(target=self._work, name="smplify3d_fitting", daemon=True)
         self._worker.start()
         self._timer = self.create_timer(node_cfg.diagnostics_period_s, self._publish_diagnostics)
@@ -277,6 +296,7 @@ class Smplify3dNode(Node):
     def _transforms(self) -> Transforms:
         ext = self.node_config.extrinsic
         lookup = None
+        self._tf_buffer = None
         if ext.use_tf:
             try:
                 import tf2_ros
@@ -288,17 +308,69 @@ class Smplify3dNode(Node):
                 lookup = self._tf_lookup
         return Transforms(ext, lookup, log=self.get_logger())
 
-    def _tf_lookup(self, target: str, source: str, stamp_ns: int) -> np.ndarray | None:
+    def _tf_lookup(self, target: str, source: str, stamp_ns: int, source_stamp_ns: int | None = None,
+                   fixed_frame: str | None = None) -> np.ndarray | None:
+        """TF at the image's stamp, waiting up to `extrinsic.tf_timeout_s` (the worker thread waits; the
+        listener fills the buffer from the executor). None: TF does not know the frames; raises
+        TransformUnavailable when it knows them but not at that time (see runtime/transforms.py)."""
         import tf2_ros
         from rclpy.duration import Duration
         from rclpy.time import Time
 
+        timeout = Duration(seconds=self.node_config.extrinsic.tf_timeout_s)
+        at = Time(nanoseconds=stamp_ns, clock_type=self.get_clock().clock_type)
         try:
-            t = self._tf_buffer.lookup_transform(
-                target, source, Time(), timeout=Duration(seconds=self.node_config.extrinsic.tf_timeout_s))
-        except tf2_ros.TransformException:
+            if fixed_frame:
+                source_at = Time(nanoseconds=source_stamp_ns, clock_type=at.clock_type)
+                t = self._tf_buffer.lookup_transform_full(target, at, source, source_at, fixed_frame, timeout)
+            else:
+                t = self._tf_buffer.lookup_transform(target, source, at, timeout=timeout)
+        except (tf2_ros.LookupException, tf2_ros.ConnectivityException):
             return None
+        except tf2_ros.TransformException as e:  # extrapolation, timeout: known frames, not at that time
+            raise TransformUnavailable(f"TF {clip(source)} -> {clip(target)} at {stamp_ns * 1e-9:.3f} s: "
+                                       f"{clip(e)}") from None
         return transform_msg_matrix(t)
+
+    def _start_extrinsic_tf(self) -> None:
+        """`extrinsic.publish_tf`: the parameter extrinsic on /tf_static (tf2_msgs needed). With tf2_ros the
+        node first watches TF for `publish_tf_wait_s`: a camera frame that already has a parent (the robot's
+        URDF, the camera driver) is left alone, since a TF frame has one parent."""
+        ext = self.node_config.extrinsic
+        self._static_tf_pub = None
+        if not ext.publish_tf:
+            return
+        try:
+            cls = self.factory.message_class("tf2_msgs/msg/TFMessage")
+        except TypeError:
+            self.get_logger().info("tf2_msgs is not installed: the extrinsic parameters are not published on "
+                                   "/tf_static (extrinsic.publish_tf)")
+            return
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)  # as tf2's static broadcaster
+        self._static_tf_pub = self.create_publisher(cls, TF_STATIC_TOPIC, latched)
+        if self._tf_buffer is None or ext.publish_tf_wait_s == 0:
+            self._publish_extrinsic_tf()
+        else:
+            self._static_tf_timer = self.create_timer(ext.publish_tf_wait_s, self._publish_extrinsic_tf_once)
+
+    def _publish_extrinsic_tf_once(self) -> None:
+        self._static_tf_timer.cancel()
+        ext = self.node_config.extrinsic
+        parent = camera_frame_parent(self._tf_buffer, ext.camera_frame)
+        if parent is not None and parent != ext.lidar_frame:
+            self.get_logger().info(f"TF already gives {ext.camera_frame!r} a parent ({clip(parent)!r}): the "
+                                   "extrinsic parameters are not published on /tf_static")
+            return
+        self._publish_extrinsic_tf()
+
+    def _publish_extrinsic_tf(self) -> None:
+        ext = self.node_config.extrinsic
+        self._publish(self._static_tf_pub, extrinsic_tf_message(ext, self.get_clock().now().to_msg(), self.factory))
+        self.get_logger().info(f"published the extrinsic parameters on /tf_static: {ext.lidar_frame} -> "
+                               f"{ext.camera_frame}")
 
     def _synchronized_inputs(self) -> list[tuple[str, str, type]]:
         """(name, topic, message class) of the synchronized inputs, in the synchronizer's order."""

@@ -42,7 +42,7 @@ from smplify3d_ros.runtime.messages import (
 )
 from smplify3d_ros.runtime.outputs import OutputBuilder
 from smplify3d_ros.runtime.stats import ProcessorStats
-from smplify3d_ros.runtime.transforms import Transforms, transform_fit
+from smplify3d_ros.runtime.transforms import Transforms, TransformUnavailable, transform_fit
 from smplify3d_ros.types import BodyFit, BodyParams, Frame
 
 _LOG_EVERY_S = 5.0  # each drop reason is logged at most this often (with the count in between)
@@ -189,10 +189,11 @@ class MessageProcessor:
     def _process(self, msgs: FrameMessages, result: FrameResult) -> None:
         self.check_stamp(result.stamp_ns)
         t = time.perf_counter()
-        frame = to_frame(msgs, self.node.keypoint_format, self.transforms, self.node.extrinsic.camera_frame)
+        try:  # every transform at the image's stamp; TF knowing the frames but not then drops the frame
+            frame, T_out = self._frame_and_output_transform(msgs, result.stamp_ns)
+        except TransformUnavailable as e:
+            raise FrameDrop(e.reason, e.message) from None
         result.latency["convert"] = time.perf_counter() - t
-        lidar_frame = str(msgs.points.header.frame_id)
-        T_out = self.transforms.out_from_cam(self.node.output_frame, frame.frame_id, lidar_frame, result.stamp_ns)
         if T_out is None:
             raise FrameDrop(DROP_NO_TRANSFORM, f"no transform from {frame.frame_id!r} to output_frame "
                             f"{self.node.output_frame!r}")
@@ -208,6 +209,15 @@ class MessageProcessor:
         result.outputs = self.outputs.build(fits, result.stamp, result.frame_id)
         result.latency["outputs"] = time.perf_counter() - t
         result.fits = fits
+
+    def _frame_and_output_transform(self, msgs: FrameMessages, stamp_ns: int) -> tuple[Frame, np.ndarray | None]:
+        frame = to_frame(msgs, self.node.keypoint_format, self.transforms, self.node.extrinsic.camera_frame)
+        lidar_frame = str(msgs.points.header.frame_id)
+        if self.transforms.compensates_motion:  # the scan moved to the image's time through the fixed frame
+            cloud_ns = stamp_to_ns(msgs.points.header.stamp)
+            frame = replace(frame, T_cam_lidar=self.transforms.cam_from_lidar(frame.frame_id, lidar_frame, stamp_ns,
+                                                                              cloud_ns))
+        return frame, self.transforms.out_from_cam(self.node.output_frame, frame.frame_id, lidar_frame, stamp_ns)
 
     def _fit(self, frame: Frame) -> FrameFits:
         try:
