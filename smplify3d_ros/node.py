@@ -31,15 +31,17 @@ from rclpy.node import Node
 
 from msg_adapters import clip
 from msg_adapters.factory import RclpyFactory
+from msg_adapters.hri import has_type
 from smplify3d_ros.config import Config, ConfigError, load_config, params_dir, resolve_profile, to_dict
 from smplify3d_ros.runtime.config import NodeConfig, load_node_config, parameter_range
 from smplify3d_ros.runtime.messages import FrameMessages
-from smplify3d_ros.runtime.outputs import DIAGNOSTICS_TYPE, NODE_NAME, OUTPUT_TYPES, OUTPUTS
+from smplify3d_ros.runtime.outputs import DIAGNOSTICS_TYPE, NODE_NAME, OUTPUT_TYPES, OUTPUTS, output_type
 from smplify3d_ros.runtime.processor import MessageProcessor
 from smplify3d_ros.runtime.stats import DiagnosticsReporter, InputCheck, InputMonitor, LogLimiter, input_level
 from smplify3d_ros.runtime.sync import make_synchronizer, sync_values
 from smplify3d_ros.runtime.transforms import (
     TF_STATIC_TOPIC,
+    TF_TOPIC,
     Transforms,
     TransformUnavailable,
     extrinsic_tf_message,
@@ -160,6 +162,38 @@ def unknown_parameter_warning(unknown: list[str], known: list[str]) -> str:
     return "unknown parameter(s), ignored: " + ", ".join(parts)
 
 
+class TopicPublishers:
+    """Publishers of the absolute output topics (REP-155 per-body topics, /tf), made on first use. Those
+    of a body unseen for `forget_after_s` are destroyed, so that the graph does not grow with every id.
+    Used from the worker thread only."""
+
+    PERSISTENT = ("/tracked", TF_TOPIC)  # not per body: kept
+
+    def __init__(self, node: Node, forget_after_s: float) -> None:
+        self.node = node
+        self.forget_after_s = forget_after_s
+        self._pubs: dict[str, tuple[Any, float]] = {}  # topic -> (publisher, last use, monotonic)
+
+    def get(self, topic: str) -> Any:
+        if not topic.startswith("/"):
+            return None  # a node-relative output that is switched off
+        entry = self._pubs.get(topic)
+        publisher = entry[0] if entry else self.node.create_publisher(
+            self.node.factory.message_class(output_type(topic)), topic, 10)
+        self._pubs[topic] = (publisher, time.monotonic())
+        return publisher
+
+    def forget_stale(self) -> None:
+        now = time.monotonic()
+        for topic, (publisher, used) in list(self._pubs.items()):
+            if now - used > self.forget_after_s and not topic.endswith(self.PERSISTENT):
+                del self._pubs[topic]
+                self.node.destroy_publisher(publisher)
+
+    def topics(self) -> list[str]:
+        return sorted(self._pubs)
+
+
 def camera_frame_parent(buffer: Any, frame: str) -> str | None:
     """The TF parent of `frame` in a tf2_ros Buffer (None: TF does not know the frame)."""
     import yaml
@@ -236,6 +270,8 @@ class Smplify3dNode(Node):
             name: self.create_publisher(self.factory.message_class(OUTPUT_TYPES[name]), f"~/{name}", 10)
             for name in OUTPUTS if getattr(node_cfg.publish, name)
         }
+        self._topic_pubs = TopicPublishers(self, node_cfg.publish.hri_forget_after_s)
+        self._start_hri_outputs()
         self._diagnostics_pub = self.create_publisher(
             self.factory.message_class(DIAGNOSTICS_TYPE), "/diagnostics", 10)
         self._reporter = DiagnosticsReporter(f"{self.get_name()}: fitting", "smplify3d_ros")
@@ -332,6 +368,18 @@ class Smplify3dNode(Node):
                                        f"{clip(e)}") from None
         return transform_msg_matrix(t)
 
+    def _start_hri_outputs(self) -> None:
+        """Say which ROS4HRI outputs this install can publish: hri_msgs and tf2_msgs are optional."""
+        if not self.node_config.publish.hri:
+            return
+        outputs = self.processor.outputs
+        if not outputs.hri_msgs:
+            self.get_logger().info("hri_msgs is not installed (apt: ros-jazzy-hri-msgs): "
+                                   f"{outputs.hri.namespace}/tracked and <id>/skeleton2d are not published")
+        outputs.hri.tf_frames = has_type(self.factory, "tf2_msgs/msg/TFMessage")
+        if not outputs.hri.tf_frames:
+            self.get_logger().info("tf2_msgs is not installed: no body_<id> frames on /tf")
+
     def _start_extrinsic_tf(self) -> None:
         """`extrinsic.publish_tf`: the parameter extrinsic on /tf_static (tf2_msgs needed). With tf2_ros the
         node first watches TF for `publish_tf_wait_s`: a camera frame that already has a parent (the robot's
@@ -340,12 +388,11 @@ class Smplify3dNode(Node):
         self._static_tf_pub = None
         if not ext.publish_tf:
             return
-        try:
-            cls = self.factory.message_class("tf2_msgs/msg/TFMessage")
-        except TypeError:
+        if not has_type(self.factory, "tf2_msgs/msg/TFMessage"):
             self.get_logger().info("tf2_msgs is not installed: the extrinsic parameters are not published on "
                                    "/tf_static (extrinsic.publish_tf)")
             return
+        cls = self.factory.message_class("tf2_msgs/msg/TFMessage")
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -455,7 +502,8 @@ class Smplify3dNode(Node):
                 if self._stopping.is_set():
                     break
                 for name, out in result.outputs.items():
-                    self._publish(self._output_pubs.get(name), out)
+                    self._publish(self._output_pubs.get(name) or self._topic_pubs.get(name), out)
+                self._topic_pubs.forget_stale()
             except Exception as e:  # noqa: BLE001 - keep the worker alive whatever happens
                 self.worker_errors += 1
                 self.get_logger().error(f"fitting worker: {type(e).__name__}: {e}")

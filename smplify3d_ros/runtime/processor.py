@@ -40,7 +40,7 @@ from smplify3d_ros.runtime.messages import (
     FrameMessages,
     to_frame,
 )
-from smplify3d_ros.runtime.outputs import OutputBuilder
+from smplify3d_ros.runtime.outputs import HriSettings, OutputBuilder
 from smplify3d_ros.runtime.stats import ProcessorStats
 from smplify3d_ros.runtime.transforms import Transforms, TransformUnavailable, transform_fit
 from smplify3d_ros.types import BodyFit, BodyParams, Frame
@@ -86,7 +86,8 @@ class MessageProcessor:
         self.frames = FrameFitter(config, fitter)
         self.fitter = self.frames.fitter
         self.transforms = transforms or Transforms(node.extrinsic, log=self.log)
-        self.outputs = OutputBuilder(node.publish, self.fitter.faces_np, self.factory)
+        self.outputs = OutputBuilder(node.publish, self.fitter.faces_np, self.factory,
+                                     HriSettings(node.topics.hri_bodies))
         self.keep_frames = keep_frames
         self.stats = ProcessorStats(latency_window=node.diagnostics.latency_window)
         self._last_stamp_ns: int | None = None
@@ -206,7 +207,7 @@ class MessageProcessor:
         if not np.allclose(T_out, np.eye(4)):
             fits = [transform_fit(fit, T_out) for fit in fits]
         t = time.perf_counter()
-        result.outputs = self.outputs.build(fits, result.stamp, result.frame_id)
+        result.outputs = self.outputs.build(fits, result.stamp, result.frame_id, frame)
         result.latency["outputs"] = time.perf_counter() - t
         result.fits = fits
 
