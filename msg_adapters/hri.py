@@ -120,3 +120,36 @@ def read_skeleton2d(msg: Any, width: int, height: int) -> np.ndarray:
     out[:, 1] *= float(height)
     out[:, 2] = np.clip(out[:, 2], 0.0, 1.0)
     return out
+
+
+class BodyIds:
+    """REP-155 body ids (strings) <-> the integer person ids of the keypoint encoding: `<prefix><n>` reads
+    as n (the ids this package publishes); any other id gets a number of its own from 2^30 up, kept for the
+    last `capacity` ids seen."""
+
+    FIRST_OTHER = 2**30
+
+    def __init__(self, prefix: str, capacity: int = 1000) -> None:
+        self.prefix = prefix
+        self.capacity = capacity
+        self._others: dict[str, int] = {}
+        self._next = self.FIRST_OTHER
+
+    def person_id(self, body_id: str) -> int:
+        rest = body_id[len(self.prefix):] if body_id.startswith(self.prefix) else ""
+        if rest.isdigit() and int(rest) < self.FIRST_OTHER:
+            return int(rest)
+        if body_id not in self._others:
+            if len(self._others) >= self.capacity:
+                del self._others[next(iter(self._others))]
+            self._others[body_id] = self._next
+            self._next = self.FIRST_OTHER + (self._next - self.FIRST_OTHER + 1) % (2**31 - 1 - self.FIRST_OTHER)
+        return self._others[body_id]
+
+
+def skeletons_to_keypoints(skeletons: dict[str, Any], width: int, height: int,
+                           ids: BodyIds) -> tuple[np.ndarray, np.ndarray]:
+    """Skeleton2D messages by body id -> (P, 17, 3) COCO-17 keypoints in pixels and (P,) person ids."""
+    order = sorted(skeletons)
+    kp = np.array([read_skeleton2d(skeletons[b], width, height) for b in order]).reshape(-1, NUM_KEYPOINTS, 3)
+    return kp, np.array([ids.person_id(b) for b in order], dtype=np.int64)

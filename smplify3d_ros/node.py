@@ -31,14 +31,15 @@ from rclpy.node import Node
 
 from msg_adapters import clip
 from msg_adapters.factory import RclpyFactory
-from msg_adapters.hri import has_type
+from msg_adapters.hri import BodyIds, has_type, skeletons_to_keypoints
+from msg_adapters.keypoints import write_keypoints
 from smplify3d_ros.config import Config, ConfigError, load_config, params_dir, resolve_profile, to_dict
 from smplify3d_ros.runtime.config import NodeConfig, load_node_config, parameter_range
 from smplify3d_ros.runtime.messages import FrameMessages
 from smplify3d_ros.runtime.outputs import DIAGNOSTICS_TYPE, NODE_NAME, OUTPUT_TYPES, OUTPUTS, output_type
 from smplify3d_ros.runtime.processor import MessageProcessor
 from smplify3d_ros.runtime.stats import DiagnosticsReporter, InputCheck, InputMonitor, LogLimiter, input_level
-from smplify3d_ros.runtime.sync import make_synchronizer, sync_values
+from smplify3d_ros.runtime.sync import SkeletonAssembler, SkeletonSet, make_synchronizer, sync_values
 from smplify3d_ros.runtime.transforms import (
     TF_STATIC_TOPIC,
     TF_TOPIC,
@@ -49,6 +50,7 @@ from smplify3d_ros.runtime.transforms import (
 )
 
 CORE_PARAMETER_SECTIONS = ("fitting", "lidar", "people")  # core sections declared whole as ROS parameters
+TOPIC_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")  # one token of a ROS 2 topic name (a REP-155 id)
 RCLPY_PARAMETERS = {"use_sim_time", "start_type_description_service"}  # declared by rclpy's Node itself
 
 
@@ -420,20 +422,28 @@ class Smplify3dNode(Node):
                                f"{ext.camera_frame}")
 
     def _synchronized_inputs(self) -> list[tuple[str, str, type]]:
-        """(name, topic, message class) of the synchronized inputs, in the synchronizer's order."""
+        """(name, topic, message class) of the synchronized inputs, in the synchronizer's order. With
+        `keypoint_input: skeleton2d` the keypoints come from `<topics.hri_bodies>/tracked` and each listed
+        body's `skeleton2d` (hri_msgs), joined per stamp into the keypoint encoding."""
         topics, msg = self.node_config.topics, self.factory.message_class
         inputs: list[tuple[str, str, type]] = []
         if topics.image_topic:
             image_type = "sensor_msgs/msg/CompressedImage" if topics.compressed else "sensor_msgs/msg/Image"
             inputs.append(("image", topics.image_topic, msg(image_type)))
+        if self.node_config.keypoint_input == "skeleton2d":
+            keypoints = ("keypoints", f"{topics.hri_bodies}/tracked", msg("hri_msgs/msg/IdsList"))
+        else:
+            keypoints = ("keypoints", topics.keypoints, msg("sensor_msgs/msg/PointCloud2"))
         return inputs + [
             ("camera_info", topics.camera_info, msg("sensor_msgs/msg/CameraInfo")),
             ("points", topics.points, msg("sensor_msgs/msg/PointCloud2")),
-            ("keypoints", topics.keypoints, msg("sensor_msgs/msg/PointCloud2")),
+            keypoints,
         ]
 
     def _subscribe(self) -> None:
         cfg = self.node_config
+        if cfg.keypoint_input == "skeleton2d" and not has_type(self.factory, "hri_msgs/msg/Skeleton2D"):
+            raise ConfigError("keypoint_input skeleton2d needs hri_msgs (apt: ros-jazzy-hri-msgs)")
         inputs = self._synchronized_inputs()
         self._inputs = [(name, topic) for name, topic, _ in inputs]
         if cfg.topics.init_bodies:
@@ -444,25 +454,36 @@ class Smplify3dNode(Node):
         self.sync = make_synchronizer(len(inputs), cfg.sync.slop_s, cfg.sync.queue_size,
                                       partial(self._on_synced, names), cfg.sync.use_message_filters,
                                       self.get_logger())
-        self._subscriptions_in = [self._subscription(name, topic, cls, partial(self._on_input, i))
+        self._subscriptions_in = [self._subscription(name, topic, cls, self._handler(i, name))
                                   for i, (name, topic, cls) in enumerate(inputs)]
         if cfg.topics.init_bodies:
             self._subscriptions_in.append(self._subscription(
                 "init_bodies", cfg.topics.init_bodies, self.factory.message_class("std_msgs/msg/String"),
                 self.processor.add_init_bodies))
 
-    def _subscription(self, name: str, topic: str, cls: type, handle: Any) -> Any:
+    def _handler(self, index: int, name: str) -> Any:
+        if name == "camera_info":
+            return partial(self._on_camera_info, index)
+        if name == "keypoints" and self.node_config.keypoint_input == "skeleton2d":
+            self._skeletons = SkeletonAssembler(partial(self._on_skeleton_set, index))
+            self._body_ids = BodyIds(self.node_config.publish.hri_id_prefix)
+            self._body_subs: dict[str, tuple[Any, float]] = {}
+            return self._on_tracked
+        return partial(self._on_input, index)
+
+    def _subscription(self, name: str, topic: str, cls: type, handle: Any, monitored: bool = True) -> Any:
         """A subscription with the input's QoS (`qos.<name>`) whose callback never raises (a bad message is
         counted under the input's name and logged, rate-limited)."""
         from rclpy.event_handler import SubscriptionEventCallbacks
 
         events = SubscriptionEventCallbacks(incompatible_qos=partial(self._on_incompatible_qos, name, topic))
-        return self.create_subscription(cls, topic, partial(self._on_message, name, handle),
+        return self.create_subscription(cls, topic, partial(self._on_message, name, handle, monitored),
                                         input_qos(getattr(self.node_config.qos, name)), event_callbacks=events)
 
     # -- callbacks (keep short: count, hand off) ----------------------------------------------------------
-    def _on_message(self, name: str, handle: Any, msg: Any) -> None:
-        self.monitor.arrived(name)
+    def _on_message(self, name: str, handle: Any, monitored: bool, msg: Any) -> None:
+        if monitored:
+            self.monitor.arrived(name)
         try:
             handle(msg)
         except Exception as e:  # noqa: BLE001 - a bad message must never stop spinning
@@ -472,6 +493,38 @@ class Smplify3dNode(Node):
 
     def _on_input(self, index: int, msg: Any) -> None:
         self.sync.add(index, msg)  # raises for a message without a usable header: counted by _on_message
+
+    def _on_camera_info(self, index: int, msg: Any) -> None:
+        self._image_size = (int(msg.width), int(msg.height))  # Skeleton2D points are normalized by it
+        self.sync.add(index, msg)
+
+    def _on_tracked(self, msg: Any) -> None:
+        """`<hri_bodies>/tracked`: follow each listed body's skeleton2d, then hand the list on."""
+        now, ns = time.monotonic(), self.node_config.topics.hri_bodies
+        cls = self.factory.message_class("hri_msgs/msg/Skeleton2D")
+        for bid in (str(i) for i in msg.ids):
+            if bid not in self._body_subs and TOPIC_TOKEN.fullmatch(bid):
+                self._body_subs[bid] = (self._subscription(
+                    "keypoints", f"{ns}/{bid}/skeleton2d", cls, partial(self._skeletons.add_skeleton, bid),
+                    monitored=False), now)
+            elif bid in self._body_subs:
+                self._body_subs[bid] = (self._body_subs[bid][0], now)
+        for bid, (sub, seen) in list(self._body_subs.items()):
+            if now - seen > self.node_config.publish.hri_forget_after_s:
+                del self._body_subs[bid]
+                self.destroy_subscription(sub)
+        self._skeletons.add_tracked(msg)
+
+    def _on_skeleton_set(self, index: int, skeletons: SkeletonSet) -> None:
+        """A stamp's skeletons -> the keypoint encoding, into the synchronizer as the keypoints input."""
+        size = getattr(self, "_image_size", None)
+        if size is None:  # no camera info yet: normalized points cannot be placed
+            self.monitor.failed("keypoints")
+            return
+        kp, ids = skeletons_to_keypoints(skeletons.skeletons, *size, self._body_ids)
+        header = skeletons.header
+        self.sync.add(index, write_keypoints(kp, ids, header.stamp, str(header.frame_id), self.factory,
+                                             self.node_config.keypoint_format))
 
     def _on_incompatible_qos(self, name: str, topic: str, event: Any) -> None:
         self.qos_incompatible[name] += 1

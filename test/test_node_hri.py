@@ -54,3 +54,23 @@ def test_per_body_topics_and_their_lifetime(monkeypatch):
         assert not any(topic.startswith(f"/humans/bodies/{ids[0]}/") for topic in node._topic_pubs.topics())
     assert any(line.startswith("hri_msgs is not installed (apt: ros-jazzy-hri-msgs)") for line in infos)
     assert "tf2_msgs is not installed: no body_<id> frames on /tf" in infos
+
+
+def test_skeleton2d_keypoint_input_needs_hri_msgs():
+    pytest.importorskip("rclpy")
+    try:
+        import hri_msgs  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        pytest.skip("hri_msgs is installed")
+    from smplify3d_ros.config import ConfigError
+    from smplify3d_ros.node import create_node
+
+    node_support.isolate_ros_graph()
+    rclpy.init()
+    try:
+        with pytest.raises(ConfigError, match="keypoint_input skeleton2d needs hri_msgs"):
+            create_node({"keypoint_input": "skeleton2d"}, fitter=node_support.fitter())
+    finally:
+        rclpy.try_shutdown()
