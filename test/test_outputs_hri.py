@@ -72,13 +72,14 @@ def test_no_hri_outputs_when_switched_off_and_no_body_frames_unless_asked():
     assert "/tf" not in builder().build([fit_at(4, 0.0)], T0, "odom")
 
 
-def test_the_clearing_fan_spans_the_view_without_gaps():
+@pytest.mark.parametrize("view, span", [("camera", (-np.pi / 4, np.pi / 4)), ("full", (-np.pi, np.pi))])
+def test_the_clearing_fan_spans_the_view_without_gaps(view, span):
     K = np.array([[320.0, 0, 320.0], [0, 320.0, 240.0], [0, 0, 1]])
-    fan = clearing_points(CameraModel(K, 640, 480), range_m=6.0, resolution_m=0.05)
-    assert np.allclose(np.linalg.norm(fan, axis=1), 6.0, atol=1e-5) and np.all(fan[:, 1] == 0.0)
+    fan = clearing_points(CameraModel(K, 640, 480), range_m=6.0, resolution_m=0.05, view=view)
+    assert np.allclose(np.linalg.norm(fan, axis=1), 12.0, atol=1e-5) and np.all(fan[:, 1] == 0.0)
     angles = np.arctan2(fan[:, 0], fan[:, 2])
-    assert angles[0] == pytest.approx(-np.pi / 4) and angles[-1] == pytest.approx(np.pi / 4)
-    assert np.max(np.linalg.norm(np.diff(fan, axis=0), axis=1)) <= 0.05
+    assert angles[0] == pytest.approx(span[0]) and abs(angles[-1]) == pytest.approx(abs(span[1]))
+    assert np.max(np.linalg.norm(np.diff(fan, axis=0), axis=1)) <= 0.025 + 1e-6
 
 
 def test_a_replayed_bag_holds_the_hri_topics():

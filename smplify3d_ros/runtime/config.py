@@ -141,6 +141,7 @@ class PublishConfig:
     clearing_points: bool  # ~/clearing_points: rays across the camera's view for Nav2's raytrace clearing
     clearing_range_m: float  # length of those rays, m
     clearing_resolution_m: float  # largest gap between ray ends (the costmap's cell size), m
+    clearing_view: Literal["full", "camera"]  # rays over a whole circle, or the camera's field of view
     hri: bool  # the ROS4HRI (REP-155) outputs under topics.hri_bodies
     hri_id_prefix: str  # REP-155 body id = prefix + person id
     hri_forget_after_s: float  # per-body publishers of a body unseen this long are removed, s

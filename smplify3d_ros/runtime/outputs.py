@@ -137,7 +137,7 @@ class OutputBuilder:
         if pub.bodies:
             out["bodies"] = f.make("std_msgs/msg/String", data=fits_to_bodies_json(fits, stamp, frame_id))
         if pub.clearing_points and frame is not None:
-            fan = clearing_points(frame.camera, pub.clearing_range_m, pub.clearing_resolution_m)
+            fan = clearing_points(frame.camera, pub.clearing_range_m, pub.clearing_resolution_m, pub.clearing_view)
             out["clearing_points"] = clearing_cloud(fan, stamp, frame.frame_id, f)
         if pub.hri:
             out.update(self._hri(self.velocities.update(fits, stamp_to_ns(stamp), frame_id), stamp, frame_id, frame))
