@@ -1,7 +1,7 @@
 """ROS4HRI (REP-155) messages: bodies as hri_msgs and sensor_msgs/JointState, and Skeleton2D keypoints in.
 
-hri_msgs is an optional apt package (`ros-jazzy-hri-msgs`). Its three message definitions the package uses
-(IdsList, Skeleton2D, NormalizedPointOfInterest2D) are kept in msg_adapters/msg/hri_msgs and registered in
+hri_msgs is optional (docs/robot.md: not a rosdep key of this package). The three definitions the package
+uses (IdsList, Skeleton2D, NormalizedPointOfInterest2D) are kept in msg_adapters/msg/hri_msgs and registered in
 rosbags typestores (`register_hri_types`), so that replay writes them into bags without the package. The
 live node publishes them only when rclpy can import hri_msgs (`has_type`).
 

@@ -119,9 +119,9 @@ def clearing_points(camera: CameraModel, range_m: float, resolution_m: float, vi
     Nav2 clears every cell between the sensor and each ray end before it marks, so a people layer fed by
     ~/body_points (marking) and this cloud (clearing) holds the latest frame's people. Costmap2D raytraces
     with Bresenham to the ray end's cell: two rays whose end cells are neighbours can still leave a cell
-    out between them in the far half of their length (measured: ~1500 missed cells within 6 m with ends
-    at 6 m). So the ends lie at twice `range_m`, half a cell (`resolution_m` / 2) apart, and Nav2 cuts
-    each ray at raytrace_max_range: what is cleared is the near half, which no two rays leave a gap in."""
+    out between them in the far half of their length (docs/node.md "Nav2" has the counts). So the ends
+    lie at twice `range_m`, half a cell (`resolution_m` / 2) apart, and Nav2 cuts each ray at
+    raytrace_max_range: what is cleared is the near half, which no two rays leave a gap in."""
     if view == "camera":
         K = np.asarray(camera.K, dtype=np.float64)
         fx, cx = K[0, 0], K[0, 2]

@@ -4,13 +4,19 @@ Wiring only: messages are synchronized here (`runtime.sync`, the replay's synchr
 worker thread, which runs the step shared with replay (`runtime.processor.MessageProcessor`: convert,
 the core frame path, output messages); the node publishes what comes back. The worker's queue is
 bounded (`worker_queue_size`, latest-frame policy): when fitting is slower than the sensors, older
-frames are dropped and counted, never queued without bound.
+frames are dropped and counted, never queued without bound. Every subscription callback counts a
+message it cannot handle under its input's name; none raises.
 
 Parameters: `params_file` names a profile (`jackal_vlp16`, `ouster64`, ...) or a YAML path; every key of
-its `node` section is declared as a ROS parameter of the same dotted name (`sync.slop_s`), every key of
-its `people` section as `people.<key>`, and so are `fitting.body.model`, `fitting.profile` and
-`fitting.device`. ROS parameters (command line, launch file) override the profile; the result is
-validated like any configuration (errors name the key).
+its `node`, `fitting`, `lidar` and `people` sections is a ROS parameter of the same dotted name
+(`sync.slop_s`, `lidar.max_range_m`), read-only, with its comment from params/base/*.yaml as description
+and its range (runtime/config.py PARAMETER_RANGES). ROS parameters (command line, `--params-file`, launch
+file) override the profile; the result is validated like any configuration before anything is declared
+(errors name the key); an integer is taken for a double; names the node does not have are warned about.
+
+Optional ROS packages, used when importable: tf2_ros (TF lookups at the image's stamp), tf2_msgs (the
+extrinsic on /tf_static, body frames on /tf), message_filters (its synchronizer), hri_msgs (REP-155's
+tracked list and skeletons, the Skeleton2D keypoint input). Without them the node says so in its log.
 """
 
 from __future__ import annotations
@@ -107,9 +113,7 @@ def parameter_descriptions() -> dict[str, str]:
     base = params_dir() / "base"
     out = yaml_comments(base / "node.yaml")
     for name in CORE_PARAMETER_SECTIONS:
-        path = base / f"{name}.yaml"
-        comments = yaml_comments(path)
-        out.update({f"{name}.{k}": v for k, v in comments.items()})
+        out.update({f"{name}.{k}": v for k, v in yaml_comments(base / f"{name}.yaml").items()})
     return out
 
 
@@ -376,7 +380,7 @@ class Smplify3dNode(Node):
             return
         outputs = self.processor.outputs
         if not outputs.hri_msgs:
-            self.get_logger().info("hri_msgs is not installed (apt: ros-jazzy-hri-msgs): "
+            self.get_logger().info("hri_msgs (ROS4HRI) is not installed: "
                                    f"{outputs.hri.namespace}/tracked and <id>/skeleton2d are not published")
         outputs.hri.tf_frames = has_type(self.factory, "tf2_msgs/msg/TFMessage")
         if not outputs.hri.tf_frames:
@@ -443,7 +447,7 @@ class Smplify3dNode(Node):
     def _subscribe(self) -> None:
         cfg = self.node_config
         if cfg.keypoint_input == "skeleton2d" and not has_type(self.factory, "hri_msgs/msg/Skeleton2D"):
-            raise ConfigError("keypoint_input skeleton2d needs hri_msgs (apt: ros-jazzy-hri-msgs)")
+            raise ConfigError("keypoint_input skeleton2d needs hri_msgs (ROS4HRI), which is not installed")
         inputs = self._synchronized_inputs()
         self._inputs = [(name, topic) for name, topic, _ in inputs]
         if cfg.topics.init_bodies:
@@ -559,7 +563,7 @@ class Smplify3dNode(Node):
                 self._topic_pubs.forget_stale()
             except Exception as e:  # noqa: BLE001 - keep the worker alive whatever happens
                 self.worker_errors += 1
-                self.get_logger().error(f"fitting worker: {type(e).__name__}: {e}")
+                self.get_logger().error(f"fitting worker: {type(e).__name__}: {clip(e)}")
 
     def _publish(self, publisher: Any, msg: Any) -> None:
         if publisher is None:

@@ -52,7 +52,7 @@ def test_per_body_topics_and_their_lifetime(monkeypatch):
         assert node_support.wait_for(lambda: recorder.count("/smplify3d/bodies") >= 4, 60.0)
         assert node_support.wait_for(lambda: node.count_publishers(f"/humans/bodies/{ids[0]}/position") == 0, 10.0)
         assert not any(topic.startswith(f"/humans/bodies/{ids[0]}/") for topic in node._topic_pubs.topics())
-    assert any(line.startswith("hri_msgs is not installed (apt: ros-jazzy-hri-msgs)") for line in infos)
+    assert any(line.startswith("hri_msgs (ROS4HRI) is not installed: ") for line in infos)
     assert "tf2_msgs is not installed: no body_<id> frames on /tf" in infos
 
 
