@@ -125,13 +125,14 @@ def test_a_params_file_reaches_the_core_and_unknown_names_are_warned(ros, tmp_pa
                       "    people:\n      max_peeple: 3\n")
     context = Context()
     rclpy.init(context=context, args=["--ros-args", "--params-file", str(params), "-p", "sync.slopp:=0.1",
-                                      "-p", "sync.queue_size:=20"])
+                                      "-p", "sync.queue_size:=20", "-p", "sync.slop_s:=1"])
     try:
         node = Smplify3dNode(context=context, fitter=node_support.fitter())
         try:
             assert node.config.lidar.max_range_m == 30.0
             assert node.config.fitting.profiles["robot"].lr == 0.03
             assert node.node_config.sync.queue_size == 20
+            assert node.node_config.sync.slop_s == 1.0, "-p sync.slop_s:=1: an integer for a double"
             assert not node.has_parameter("sync.slopp")
         finally:
             node.destroy_node()
