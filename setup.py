@@ -20,7 +20,7 @@ setup(
     long_description_content_type="text/markdown",
     license="MIT",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*", "msg_adapters", "msg_adapters.*"]),
-    package_data={"msg_adapters": ["*.md"]},
+    package_data={"msg_adapters": ["*.md", "msg/*/*.msg"]},  # msg: hri_msgs definitions for rosbags
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (SHARE, ["package.xml"]),

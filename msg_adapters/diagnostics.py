@@ -30,6 +30,35 @@ def format_value(value: float | str | bool) -> str:
     return str(value)
 
 
+def diagnostic_status(
+    name: str,
+    level: int | str,
+    message: str,
+    values: Mapping[str, float | int | str],
+    factory: MessageFactory | None = None,
+    hardware_id: str = "",
+) -> Any:
+    """One DiagnosticStatus with `values` as its key/value pairs (in order); `level` 0..3 or a LEVELS name."""
+    factory = resolve_factory(factory)
+    return factory.make(
+        "diagnostic_msgs/msg/DiagnosticStatus",
+        level=_level(level),
+        name=str(name),
+        message=str(message),
+        hardware_id=str(hardware_id),
+        values=[
+            factory.make("diagnostic_msgs/msg/KeyValue", key=str(k), value=format_value(v))
+            for k, v in values.items()
+        ],
+    )
+
+
+def diagnostics_message(stamp: Any, statuses: list[Any], factory: MessageFactory | None = None) -> Any:
+    """A DiagnosticArray of several statuses (diagnostic_updater publishes one per task)."""
+    factory = resolve_factory(factory)
+    return factory.make("diagnostic_msgs/msg/DiagnosticArray", header=factory.header(stamp, ""), status=statuses)
+
+
 def diagnostics_array(
     stamp: Any,
     name: str,
@@ -43,18 +72,5 @@ def diagnostics_array(
 
     `level` is 0..3 or "OK" / "WARN" / "ERROR" / "STALE".
     """
-    factory = resolve_factory(factory)
-    status = factory.make(
-        "diagnostic_msgs/msg/DiagnosticStatus",
-        level=_level(level),
-        name=str(name),
-        message=str(message),
-        hardware_id=str(hardware_id),
-        values=[
-            factory.make("diagnostic_msgs/msg/KeyValue", key=str(k), value=format_value(v))
-            for k, v in values.items()
-        ],
-    )
-    return factory.make(
-        "diagnostic_msgs/msg/DiagnosticArray", header=factory.header(stamp, ""), status=[status]
-    )
+    status = diagnostic_status(name, level, message, values, factory, hardware_id)
+    return diagnostics_message(stamp, [status], factory)

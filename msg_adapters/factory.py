@@ -239,12 +239,15 @@ def _rclpy_converter(name: str, idl_type: str) -> Any:
 
 
 class RosbagsFactory(MessageFactory):
-    """rosbags message dataclasses, from a typestore (default: ROS 2 Jazzy)."""
+    """rosbags message dataclasses, from a typestore (default: ROS 2 Jazzy). The package's own copies of the
+    hri_msgs definitions (msg_adapters/msg) are registered in it, so that bags get them without hri_msgs."""
 
     name = "rosbags"
 
     def __init__(self, typestore: Any = None) -> None:
-        self.typestore = typestore if typestore is not None else _jazzy_typestore()
+        from msg_adapters.hri import register_hri_types
+
+        self.typestore = register_hri_types(typestore if typestore is not None else _jazzy_typestore())
 
     def message_class(self, typename: str) -> type:
         full = normalize_typename(typename)

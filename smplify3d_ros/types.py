@@ -108,7 +108,9 @@ class BodyFit:
     # (3,) float64 the point `params.root_orient` rotates the body about (m); None: `params.transl`, which
     # is where Anny's convention puts it (the fitter always sets it; SMPL's is its root joint)
     rotation_center: np.ndarray | None = None
-    velocity: np.ndarray | None = None  # (3,) float64 m/s of the pelvis, the fit's frame; None: not tracked
+    # (3,) float64 velocity of the body (its hip midpoint), m/s, in the fit's frame; None: not estimated
+    # (a tracker fills it; until then the drivers derive it from consecutive fits of the same id)
+    velocity: np.ndarray | None = None
 
     @property
     def center(self) -> np.ndarray:

@@ -358,3 +358,32 @@ def stub_replay(path: Any, output: Any = None, **kwargs: Any):
     kwargs.setdefault("fitter", StubFitter())
     return replay_bag(path, output, progress=False, config=config(), node_config=kwargs.pop("node_config", None)
                       or node_config(), **kwargs)
+
+
+def statuses(msg: Any) -> dict[str, tuple[int, str, dict[str, str]]]:
+    """A DiagnosticArray as {status name: (level, message, {key: value})}."""
+    return {s.name: (level(s), s.message, {kv.key: kv.value for kv in s.values}) for s in msg.status}
+
+
+def last_statuses(recorder: Recorder) -> dict[str, tuple[int, str, dict[str, str]]]:
+    msgs = recorder.messages("/diagnostics")
+    return statuses(msgs[-1]) if msgs else {}
+
+
+@contextmanager
+def fake_modules(*names: str) -> Iterator[None]:
+    """Import `names` from test/fakes (stand-ins for ROS packages not installable here) for a while."""
+    import sys
+
+    fakes = str(Path(__file__).resolve().parent / "fakes")
+    saved = {name: sys.modules.pop(name, None) for name in names}
+    sys.path.insert(0, fakes)
+    try:
+        yield
+    finally:
+        sys.path.remove(fakes)
+        for name in names:
+            for key in [k for k in sys.modules if k == name or k.startswith(name + ".")]:
+                del sys.modules[key]
+            if saved[name] is not None:
+                sys.modules[name] = saved[name]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from msg_adapters.diagnostics import diagnostics_array, format_value
 from msg_adapters.factory import RclpyFactory, RosbagsFactory, rclpy_available, to_plain
@@ -99,9 +100,15 @@ def test_pose_array(factory):
     p = msg.poses[0]
     hips = fits[0].keypoints3d[[KP["left_hip"], KP["right_hip"]]].astype(np.float64).mean(axis=0)
     np.testing.assert_allclose([p.position.x, p.position.y, p.position.z], hips, atol=1e-6)
-    q = [p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w]
-    np.testing.assert_allclose(q, [0, np.sin(np.pi / 4), 0, np.cos(np.pi / 4)], atol=1e-12)
-    assert msg.poses[1].orientation.w == 1.0
+    # REP-103 axes for a person (x forward, y left, z up), i.e. the body's canonical z, x and y axes
+    for pose, fit in zip(msg.poses, fits, strict=True):
+        o = pose.orientation
+        axes = Rotation.from_quat([o.x, o.y, o.z, o.w]).as_matrix()
+        root = Rotation.from_rotvec(fit.params.root_orient).as_matrix()
+        np.testing.assert_allclose(axes, root[:, [2, 0, 1]], atol=1e-12)
+    o = msg.poses[0].orientation
+    forward = Rotation.from_quat([o.x, o.y, o.z, o.w]).apply([1.0, 0.0, 0.0])
+    np.testing.assert_allclose(forward, [1.0, 0.0, 0.0], atol=1e-12), "turned 90 deg: facing camera x"
 
 
 def test_ids_must_fit_int32():

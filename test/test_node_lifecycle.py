@@ -88,7 +88,16 @@ def test_spin_publishes_diagnostics_then_destroys_cleanly():
         assert values["frames_in"] == "0"
         assert values["queue.dropped_stale"] == "0" and "rate_hz.points" in values
         status = recorder.messages("/diagnostics")[-1].status[0]
-        assert status.name == "smplify3d: fitting" and node_support.level(status) == 0
+        assert status.name == "smplify3d: fitting"
+        # no sensor ever publishes here: past diagnostics.stale_after_s (1 s) the inputs are WARN and the
+        # fitting status ERROR, diagnostic_updater style (one status per task)
+        assert node_support.wait_for(lambda: node_support.last_statuses(recorder)["smplify3d: fitting"][0] == 2, 10.0)
+        statuses = node_support.last_statuses(recorder)
+        assert statuses["smplify3d: fitting"][1].startswith("no frame can be built: image silent for")
+        for name in ("image", "camera_info", "points", "keypoints"):
+            level, message, values = statuses[f"smplify3d: input {name}"]
+            assert level == 1 and message.startswith("no message yet for"), (name, message)
+            assert values["received"] == "0" and values["topic"].startswith("/")
         worker = node._worker
     assert not worker.is_alive(), "the fitting worker stopped with the node"
 
@@ -148,6 +157,7 @@ def test_ctrl_c_while_fitting_exits_cleanly_without_traceback(ros):
     out += rest
     assert proc.returncode == 0, out
     assert "Traceback" not in out and "Exception" not in out, out
+    assert "Warp" not in out and "CUDA driver" not in out, "the body model loads quietly (ROS log only)"
 
 
 def test_configuration_error_exits_2_with_the_key():

@@ -25,7 +25,9 @@ def read_bag(path):
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
-    store = get_typestore(Stores.ROS2_JAZZY)
+    from msg_adapters.hri import register_hri_types
+
+    store = register_hri_types(get_typestore(Stores.ROS2_JAZZY))  # the replay also writes hri_msgs topics
     out: dict[str, list] = {}
     with Reader(path) as reader:
         for conn, t, raw in reader.messages():

@@ -183,16 +183,20 @@ class BagReader:
         return int(self.reader.start_time), int(self.reader.end_time)
 
     def _read_side_topics(self) -> None:
-        """One pass over /tf_static and init_bodies (small topics) before the replay."""
-        wanted = {TF_STATIC_TOPIC} | ({self.topics.init_bodies} if self.topics.init_bodies else set())
+        """One pass over /tf_static, /tf and init_bodies (small topics) before the replay: the TF graph holds
+        every recorded transform, so that lookups at a frame's stamp interpolate like tf2."""
+        from smplify3d_ros.runtime.transforms import TF_TOPIC
+
+        tf_topics = {TF_STATIC_TOPIC, TF_TOPIC}
+        wanted = tf_topics | ({self.topics.init_bodies} if self.topics.init_bodies else set())
         conns = [c for c in self.reader.connections if c.topic in wanted]
         for conn, timestamp, raw in self.reader.messages(connections=conns) if conns else ():
             msg = self._decode(conn, timestamp, raw)
             if msg is None:
                 continue
             try:
-                if conn.topic == TF_STATIC_TOPIC and conn.msgtype == "tf2_msgs/msg/TFMessage":
-                    self.tf.add(msg)
+                if conn.topic in tf_topics and conn.msgtype == "tf2_msgs/msg/TFMessage":
+                    self.tf.add(msg, static=conn.topic == TF_STATIC_TOPIC)
                 elif conn.topic == self.topics.init_bodies:
                     self.init_docs.append((_document_stamp_ns(msg.data), msg.data))
             except Exception as e:  # noqa: BLE001 - a transform with unusable values

@@ -26,7 +26,7 @@ from smplify3d_ros.replay.scoring import TruthScorer
 from smplify3d_ros.replay.sources import READ_BAD_TRUTH
 from smplify3d_ros.replay.writer import BagWriter, write_metadata_yaml
 from smplify3d_ros.runtime.config import load_node_config
-from smplify3d_ros.runtime.outputs import DIAGNOSTICS_TYPE, NODE_NAME, OUTPUT_TYPES, OUTPUTS
+from smplify3d_ros.runtime.outputs import DIAGNOSTICS_TYPE, NODE_NAME, OUTPUTS, output_topic, output_type
 from smplify3d_ros.runtime.processor import FrameResult, MessageProcessor
 from smplify3d_ros.runtime.stats import DiagnosticsReporter
 from smplify3d_ros.runtime.sync import sync_values
@@ -173,7 +173,7 @@ class _Replay:
         if self.writer is None:
             return
         for name, msg in result.outputs.items():
-            self.writer.write(OUTPUT_TOPICS[name], OUTPUT_TYPES[name], msg, timestamp)
+            self.writer.write(output_topic(name), output_type(name), msg, timestamp)
         if self.last_diagnostics is None or timestamp - self.last_diagnostics >= self.period_ns:
             self.last_diagnostics = timestamp
             self._diagnostics(result.stamp, timestamp)

@@ -28,7 +28,7 @@ import logging
 import threading
 import time
 import traceback
-from collections import Counter, deque
+from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -51,25 +51,13 @@ from smplify3d_ros.runtime.messages import (
     FrameMessages,
     to_frame,
 )
-from smplify3d_ros.runtime.outputs import OutputBuilder
+from smplify3d_ros.runtime.outputs import HriSettings, OutputBuilder
 from smplify3d_ros.runtime.stats import ProcessorStats
-from smplify3d_ros.runtime.transforms import Transforms, transform_fit
+from smplify3d_ros.runtime.transforms import Transforms, TransformUnavailable, transform_fit
 from smplify3d_ros.types import BodyFit, BodyParams, Frame
 
 _LOG_EVERY_S = 5.0  # each drop reason is logged at most this often (with the count in between)
 PERSON_NON_FINITE = "non_finite"  # people_dropped key: a fit holding NaN / inf, withheld
-
-
-@dataclass
-class _Stats(ProcessorStats):
-    """ProcessorStats with the keypoint points ignored in used frames (`keypoints_ignored.<reason>`)."""
-
-    keypoints_ignored: Counter = field(default_factory=Counter)
-
-    def values(self) -> dict[str, float | int | str]:
-        values = super().values()
-        values.update({f"keypoints_ignored.{k}": n for k, n in sorted(self.keypoints_ignored.items())})
-        return values
 
 
 def _short_traceback(e: BaseException, frames: int) -> str:
@@ -122,9 +110,10 @@ class MessageProcessor:
         self.frames = FrameFitter(config, fitter)
         self.fitter = self.frames.fitter
         self.transforms = transforms or Transforms(node.extrinsic, log=self.log)
-        self.outputs = OutputBuilder(node.publish, self.fitter.faces_np, self.factory)
+        self.outputs = OutputBuilder(node.publish, self.fitter.faces_np, self.factory,
+                                     HriSettings(node.topics.hri_bodies))
         self.keep_frames = keep_frames
-        self.stats = _Stats()
+        self.stats = ProcessorStats(latency_window=node.diagnostics.latency_window)
         self._last_stamp_ns: int | None = None
         self._init_docs: deque[tuple[int, str, dict[int, BodyParams]]] = deque(maxlen=50)
         self._lock = threading.Lock()
@@ -226,11 +215,11 @@ class MessageProcessor:
     def _process(self, msgs: FrameMessages, result: FrameResult) -> None:
         self.check_stamp(result.stamp_ns)
         t = time.perf_counter()
-        frame = to_frame(msgs, self.node.keypoint_format, self.transforms, self.node.extrinsic.camera_frame,
-                         self.stats.keypoints_ignored)
+        try:  # every transform at the image's stamp; TF knowing the frames but not then drops the frame
+            frame, T_out = self._frame_and_output_transform(msgs, result.stamp_ns)
+        except TransformUnavailable as e:
+            raise FrameDrop(e.reason, e.message) from None
         result.latency["convert"] = time.perf_counter() - t
-        lidar_frame = str(msgs.points.header.frame_id)
-        T_out = self.transforms.out_from_cam(self.node.output_frame, frame.frame_id, lidar_frame, result.stamp_ns)
         if T_out is None:
             raise FrameDrop(DROP_NO_TRANSFORM, f"no transform from {frame.frame_id!r} to output_frame "
                             f"{self.node.output_frame!r}")
@@ -244,7 +233,7 @@ class MessageProcessor:
             fits = [transform_fit(fit, T_out) for fit in fits]
         fits = self._withhold_non_finite(fits)
         t = time.perf_counter()
-        result.outputs = self.outputs.build(fits, result.stamp, result.frame_id)
+        result.outputs = self.outputs.build(fits, result.stamp, result.frame_id, frame)
         result.latency["outputs"] = time.perf_counter() - t
         result.fits = fits
 
@@ -257,6 +246,16 @@ class MessageProcessor:
             self._log_limited(PERSON_NON_FINITE, f"withheld the fit of person(s) {withheld}: NaN or infinite "
                               "values (diverged)")
         return finite
+
+    def _frame_and_output_transform(self, msgs: FrameMessages, stamp_ns: int) -> tuple[Frame, np.ndarray | None]:
+        frame = to_frame(msgs, self.node.keypoint_format, self.transforms, self.node.extrinsic.camera_frame,
+                         self.stats.keypoints_ignored)
+        lidar_frame = str(msgs.points.header.frame_id)
+        if self.transforms.compensates_motion:  # the scan moved to the image's time through the fixed frame
+            cloud_ns = stamp_to_ns(msgs.points.header.stamp)
+            frame = replace(frame, T_cam_lidar=self.transforms.cam_from_lidar(frame.frame_id, lidar_frame, stamp_ns,
+                                                                              cloud_ns))
+        return frame, self.transforms.out_from_cam(self.node.output_frame, frame.frame_id, lidar_frame, stamp_ns)
 
     def _fit(self, frame: Frame) -> FrameFits:
         try:

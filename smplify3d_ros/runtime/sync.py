@@ -248,3 +248,74 @@ def sync_values(sync: Synchronizer) -> dict[str, int]:
         "sync.dropped_overflow": s.dropped_overflow, "sync.dropped_duplicate": s.dropped_duplicate,
         "sync.dropped_reset": s.dropped_reset, "sync.time_resets": s.time_resets,
     }
+
+
+# -- hri_msgs/Skeleton2D keypoint input ----------------------------------------------------------------------
+@dataclass
+class SkeletonSet:
+    """The Skeleton2D messages of one image stamp: what one keypoint message would hold."""
+
+    stamp_ns: int
+    header: Any  # the tracked list's header (stamp and frame of the image)
+    skeletons: dict[str, Any] = field(default_factory=dict)  # body id -> hri_msgs/Skeleton2D
+    missing: list[str] = field(default_factory=list)  # listed bodies whose skeleton did not arrive
+
+
+class SkeletonAssembler:
+    """REP-155 publishes one Skeleton2D per body (`<ns>/<id>/skeleton2d`) and the list of tracked bodies
+    (`<ns>/tracked`, hri_msgs/IdsList); this joins them into one set per image stamp, as the keypoint input
+    needs. A stamp's set is complete once its tracked list and every listed body's skeleton of that stamp
+    have arrived; a tracked list of a later stamp completes the older sets with what they have (a missing
+    skeleton is left out and counted). At most `max_pending` stamps wait; skeletons of unlisted stamps are
+    kept as long. `on_set(SkeletonSet)` is called outside the lock, oldest stamp first."""
+
+    def __init__(self, on_set: Callable[[SkeletonSet], None], max_pending: int = 10,
+                 stamp_ns: Callable[[Any], int] = header_stamp_ns) -> None:
+        self.on_set = on_set
+        self.max_pending = max_pending
+        self.stamp_ns = stamp_ns
+        self._tracked: dict[int, tuple[Any, list[str]]] = {}  # stamp -> (header, ids)
+        self._skeletons: dict[int, dict[str, Any]] = {}  # stamp -> body id -> skeleton
+        self._lock = threading.Lock()
+        self.sets = 0
+        self.missing = 0  # listed skeletons that never arrived for their stamp
+        self.unlisted = 0  # skeletons dropped without a tracked list of their stamp
+
+    def add_tracked(self, msg: Any) -> None:
+        stamp = self.stamp_ns(msg)
+        with self._lock:
+            self._tracked[stamp] = (msg.header, [str(i) for i in msg.ids])
+            ready = self._ready_locked(flush_before=stamp)
+        for s in ready:
+            self.on_set(s)
+
+    def add_skeleton(self, body_id: str, msg: Any) -> None:
+        stamp = self.stamp_ns(msg)
+        with self._lock:
+            self._skeletons.setdefault(stamp, {})[body_id] = msg
+            ready = self._ready_locked(flush_before=None)
+        for s in ready:
+            self.on_set(s)
+
+    def _ready_locked(self, flush_before: int | None) -> list[SkeletonSet]:
+        out = []
+        for stamp in sorted(self._tracked):
+            header, ids = self._tracked[stamp]
+            got = self._skeletons.get(stamp, {})
+            complete = all(i in got for i in ids)
+            if not complete and (flush_before is None or stamp >= flush_before):
+                continue
+            del self._tracked[stamp]
+            got = self._skeletons.pop(stamp, {})
+            s = SkeletonSet(stamp, header, {i: got[i] for i in ids if i in got}, [i for i in ids if i not in got])
+            self.missing += len(s.missing)
+            self.sets += 1
+            out.append(s)
+        self._bound_locked()
+        return out
+
+    def _bound_locked(self) -> None:
+        while len(self._tracked) > self.max_pending:
+            del self._tracked[min(self._tracked)]
+        while len(self._skeletons) > self.max_pending:
+            self.unlisted += len(self._skeletons.pop(min(self._skeletons)))
