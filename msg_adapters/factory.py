@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from msg_adapters.definitions import register_hri_types
+
 # Element types of numeric message fields (ROS IDL names as rclpy and rosbags spell them).
 _NUMPY_OF = {
     "float": np.float32, "float32": np.float32, "double": np.float64, "float64": np.float64,
@@ -245,8 +247,6 @@ class RosbagsFactory(MessageFactory):
     name = "rosbags"
 
     def __init__(self, typestore: Any = None) -> None:
-        from msg_adapters.hri import register_hri_types
-
         self.typestore = register_hri_types(typestore if typestore is not None else _jazzy_typestore())
 
     def message_class(self, typename: str) -> type:

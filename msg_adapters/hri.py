@@ -16,18 +16,16 @@ named `<joint>_yaw_<body id>`, `<joint>_pitch_<body id>`, `<joint>_roll_<body id
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from msg_adapters.definitions import HRI_TYPES, MSG_DIR, register_hri_types  # noqa: F401 - re-exported
 from msg_adapters.factory import MessageFactory, resolve_factory
 from msg_adapters.keypoints import get_keypoint_format
 from smplify3d_ros.keypoints import KP, NUM_KEYPOINTS
 
-MSG_DIR = Path(__file__).resolve().parent / "msg"
-HRI_TYPES = ("hri_msgs/msg/NormalizedPointOfInterest2D", "hri_msgs/msg/Skeleton2D", "hri_msgs/msg/IdsList")
 # columns: a person's REP-103 axes (forward, left, up) in the body models' canonical axes (x left, y up, z forward)
 CANONICAL_FROM_REP103 = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
 JOINT_AXES = ("yaw", "pitch", "roll")
@@ -35,20 +33,6 @@ SKELETON_JOINTS = 18
 _REP155 = get_keypoint_format("rep155")  # Skeleton2D's index order; NECK (1) has no COCO-17 joint
 _SHOULDERS = (KP["left_shoulder"], KP["right_shoulder"])
 _NECK = 1
-
-
-def register_hri_types(typestore: Any) -> Any:
-    """Add the hri_msgs definitions of msg_adapters/msg to a rosbags typestore (once; returns it)."""
-    from rosbags.typesys import get_types_from_msg
-
-    missing = [name for name in HRI_TYPES if name not in typestore.types]
-    if missing:
-        types: dict[str, Any] = {}
-        for name in HRI_TYPES:
-            package, _, type_name = name.split("/")
-            types.update(get_types_from_msg((MSG_DIR / package / f"{type_name}.msg").read_text(), name))
-        typestore.register(types)
-    return typestore
 
 
 def has_type(factory: MessageFactory, typename: str) -> bool:
