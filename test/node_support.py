@@ -387,3 +387,27 @@ def fake_modules(*names: str) -> Iterator[None]:
                 del sys.modules[key]
             if saved[name] is not None:
                 sys.modules[name] = saved[name]
+
+
+def publish_bag_at_recorded_timing(path, recorder, speed: float = 1.0) -> dict[str, list[int]]:
+    """Every input message of the bag, deserialized as rclpy messages straight from the bag's CDR bytes, at
+    the recorded timing; returns the stamps sent per input."""
+    from rclpy.serialization import deserialize_message
+    from rosbags.rosbag2 import Reader
+
+    topic_to_input = {topic: name for name, topic in bag_fixture.TOPICS.items() if name in recorder.publishers}
+    sent: dict[str, list[int]] = {}
+    with Reader(path) as reader:
+        conns = [c for c in reader.connections if c.topic in topic_to_input]
+        start_wall, start_bag = time.monotonic(), None
+        for conn, t, raw in reader.messages(connections=conns):
+            name = topic_to_input[conn.topic]
+            start_bag = t if start_bag is None else start_bag
+            delay = (t - start_bag) * 1e-9 / speed - (time.monotonic() - start_wall)
+            if delay > 0:
+                time.sleep(delay)
+            publisher = recorder.publishers[name]
+            msg = deserialize_message(bytes(raw), publisher.msg_type)
+            publisher.publish(msg)
+            sent.setdefault(name, []).append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+    return sent

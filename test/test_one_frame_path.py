@@ -1,16 +1,22 @@
-"""One frame path: the live node, the replay, `fit_frame` and the bench run the same frame logic, and the
-node and the replay give identical `~/bodies` on a bundled bag with either synchronizer."""
+"""One frame path: the live node, the replay, `fit_frame` and the bench run the same frame logic.
+
+The live test publishes a bundled recording (bags/walk_sqlite3, else the test fixture) through rclpy at its
+recorded timing into a running node. Fitting is slower than the sensors on a CPU, so the node's
+latest-frame queue skips frames (never the last one); every frame it publishes must be what
+`smplify3d replay` computes for that frame, byte for byte, with either synchronizer."""
 
 from __future__ import annotations
 
 import importlib.util
 import json
 import sys
+import time
 from pathlib import Path
 
 import node_support
 import pytest
-from test_node_replay import publish_bag_at_recorded_timing
+
+from msg_adapters import read_fields
 
 FAKES = Path(__file__).resolve().parent / "fakes"
 SYNCHRONIZERS = ["builtin", "message_filters"]
@@ -53,27 +59,61 @@ def test_node_and_replay_publish_identical_bodies(synchronizer, tmp_path):
     summary = replay_bag(path, out, progress=False, config=node_support.config(), node_config=node_config,
                          fitter=node_support.fitter())
     replayed = bodies_documents(out)
-    assert summary.frames_published == len(replayed) >= 2
+    assert summary.frames_published == summary.frames_synced == len(replayed) >= 2
 
-    # a queue longer than the bag: the node fits every frame, as the replay does
-    parameters = {"sync.use_message_filters": use_mf, "worker_queue_size": 100, "diagnostics_period_s": 0.25}
+    parameters = {"sync.use_message_filters": use_mf, "diagnostics_period_s": 0.25}
     with node_support.running_node(parameters) as (node, recorder):
         assert type(node.sync).__name__ == ("MessageFiltersSync" if use_mf else "ApproximateTimeSync")
-        sent = publish_bag_at_recorded_timing(path, recorder)
-        assert node_support.wait_for(lambda: recorder.count("/smplify3d/bodies") >= len(replayed), 300.0), \
-            recorder.last_diagnostics()
-        node_support.wait_for(lambda: "sync.matched" in recorder.last_diagnostics(), 5.0)
-        diagnostics = recorder.last_diagnostics()
-        live = [json.loads(m.data) for m in recorder.messages("/smplify3d/bodies")]
+        sent = node_support.publish_bag_at_recorded_timing(path, recorder)
+        last = sent["image"][-1]
 
-    assert len(sent["image"]) == summary.frames_synced
-    for doc in live:
-        stamp = doc["stamp"]["sec"] * 1_000_000_000 + doc["stamp"]["nanosec"]
-        assert doc == replayed[stamp], f"frame {stamp}: the node's bodies differ from the replay's"
-    assert {d["stamp"]["sec"] * 1_000_000_000 + d["stamp"]["nanosec"] for d in live} == set(replayed)
-    sync_keys = {k for k in diagnostics if k.startswith("sync.")}
-    assert sync_keys == set(summary.sync), "the same sync.* diagnostics with either synchronizer"
-    assert int(diagnostics["sync.matched"]) == summary.sync["sync.matched"] == summary.frames_synced
+        def published() -> list[dict]:
+            return [json.loads(m.data) for m in recorder.messages("/smplify3d/bodies")]
+
+        # the latest-frame queue may skip frames while fitting, never the last one
+        assert node_support.wait_for(lambda: any(_stamp(d) == last for d in published()), 300.0), \
+            recorder.last_diagnostics()
+        n = len(published())
+        assert node_support.wait_for(lambda: min(recorder.count(t) for t in (
+            "/smplify3d/markers", "/smplify3d/joints", "/smplify3d/people")) >= n, 30.0)
+        time.sleep(0.6)  # one more diagnostics period
+        diagnostics, live = recorder.last_diagnostics(), published()
+        markers, joints, people = (recorder.messages(f"/smplify3d/{t}") for t in ("markers", "joints", "people"))
+
+    n_frames = len(sent["image"])
+    assert n_frames == summary.frames_synced and 1 <= len(live) <= n_frames
+    for doc in live:  # the replay's document of the same frame, to the byte
+        assert doc == replayed[_stamp(doc)], f"frame {_stamp(doc)}: the node's bodies differ from the replay's"
+    assert all(body["model"] == "anny" for doc in live for body in doc["bodies"])
+    _check_other_outputs(live, markers, joints, people)
+    # diagnostics: every frame synchronized, each one fitted or dropped as stale, none lost; the same sync.*
+    # keys with either synchronizer
+    assert {k for k in diagnostics if k.startswith("sync.")} == set(summary.sync)
+    assert int(diagnostics["sync.matched"]) == summary.sync["sync.matched"] == n_frames
+    assert int(diagnostics["frames_published"]) == len(live)
+    assert int(diagnostics["frames_published"]) + int(diagnostics["queue.dropped_stale"]) == n_frames
+    assert diagnostics["worker_errors"] == "0" and "drop.internal_error" not in diagnostics
+
+
+def _stamp(doc: dict) -> int:
+    return doc["stamp"]["sec"] * 1_000_000_000 + doc["stamp"]["nanosec"]
+
+
+def _check_other_outputs(bodies: list[dict], markers: list, joints: list, people: list) -> None:
+    """Markers (a mesh, a skeleton and a label per person, the image's stamp), joints (17 per person with
+    the person ids) and people (one pose per body) of each published frame."""
+    for array, cloud, poses, doc in zip(markers, joints, people, bodies, strict=True):
+        ids = {b["id"] for b in doc["bodies"]}
+        meshes = {m.id: m for m in array.markers if m.ns == "mesh" and m.action == 0}
+        assert set(meshes) == ids
+        assert all(m.type == 11 and len(m.points) % 3 == 0 and len(m.points) > 1000 for m in meshes.values())
+        assert {m.ns for m in array.markers if m.action == 0} == {"mesh", "skeleton", "label"}
+        header = array.markers[0].header
+        assert (header.stamp.sec, header.stamp.nanosec) == (doc["stamp"]["sec"], doc["stamp"]["nanosec"])
+        fields = read_fields(cloud, ["person", "joint"])
+        assert sorted(set(fields["person"].tolist())) == sorted(ids)
+        assert len(fields["joint"]) == 17 * len(doc["bodies"])
+        assert len(poses.poses) == len(doc["bodies"])
 
 
 def test_fit_frame_runs_the_frame_path_of_the_drivers():
