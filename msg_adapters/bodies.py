@@ -84,6 +84,7 @@ def fit_to_dict(fit: BodyFit) -> dict[str, Any]:
             "icp_converged": bool(q.icp_converged),
             "final_loss": _num(q.final_loss),
         },
+        "velocity": None if fit.velocity is None else _vec(fit.velocity),
         "flags": sorted(str(f) for f in fit.flags),
     }
 

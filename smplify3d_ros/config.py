@@ -55,6 +55,11 @@ class Config:
     people: PeopleConfig
     tracking: TrackingConfig
 
+    def __post_init__(self) -> None:
+        require(self.tracking.warm_profile in self.fitting.profiles,
+                f"tracking.warm_profile {self.tracking.warm_profile!r} is not one of fitting.profiles "
+                f"{sorted(self.fitting.profiles)}")
+
 
 CORE_SECTIONS: dict[str, type] = {"fitting": FittingConfig, "lidar": ExtractionConfig, "people": PeopleConfig,
                                   "tracking": TrackingConfig}

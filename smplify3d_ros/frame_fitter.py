@@ -1,7 +1,13 @@
 """One frame, from what the sensors gave to fitted bodies: the path the library, the drivers and the
 benchmarks all run.
 
-    Frame -> people selected -> observations (undistorted keypoints, each person's LiDAR points) -> fits
+    Frame -> people selected -> observations (undistorted keypoints, each person's LiDAR points)
+          -> [tracks: ids, warm starts] -> fits -> [tracks: velocity, shape]
+
+With a `Tracker` (the drivers keep one per stream), people keep their ids across frames and a tracked
+person is fitted from their previous fit moved to the new stamp, with the short warm solve (the
+`fitting.profiles.<tracking.warm_profile>` profile, shape held); new people and warm fits that lost
+their person (reprojection or chamfer beyond `tracking.lost_*`) get the full cold start.
 
 `FrameFitter.fit(frame)` is that path; `fit_frame(frame)` runs it with a cached fitter. The drivers
 (`runtime.processor.MessageProcessor`) add what lies around it: messages in, stamps checked, outputs out.
@@ -24,7 +30,16 @@ from smplify3d_ros.fitting.fitter import FitOptions, Fitter
 from smplify3d_ros.lidar.config import ExtractionConfig
 from smplify3d_ros.lidar.extract import ExtractionResult, extract_people
 from smplify3d_ros.settings import to_dict
-from smplify3d_ros.types import BodyFit, CameraModel, Frame, PersonObservation
+from smplify3d_ros.tracking.tracker import Tracker
+from smplify3d_ros.types import (
+    FLAG_DIVERGED,
+    FLAG_EXTERNAL_INIT,
+    FLAG_WARM_START,
+    BodyFit,
+    CameraModel,
+    Frame,
+    PersonObservation,
+)
 
 # People that are not fitted, by reason (`FrameFits.people_dropped` keys).
 PERSON_FEW_KEYPOINTS = "few_keypoints"  # fewer than people.min_keypoints usable keypoints
@@ -68,16 +83,24 @@ def extract_frame_people(frame: Frame, config: ExtractionConfig) -> tuple[np.nda
 
 
 class FrameFitter:
-    """The core configuration and a `Fitter`; `fit(frame)` runs one frame's path (module docstring)."""
+    """The core configuration and a `Fitter`; `fit(frame)` runs one frame's path (module docstring).
+    `tracker` follows people across the frames given to `fit`, in order; `warm_fitter` makes the warm fits
+    (default: a `Fitter` of the warm profile, sharing `fitter`'s body model)."""
 
-    def __init__(self, config: Config, fitter: Fitter | None = None) -> None:
+    def __init__(self, config: Config, fitter: Fitter | None = None, tracker: Tracker | None = None,
+                 warm_fitter: Fitter | None = None) -> None:
         self.config = config
         self.fitter = fitter if fitter is not None else Fitter(config.fitting)
+        self.tracker = tracker
+        self.warm_fitter = warm_fitter
+        if tracker is not None and warm_fitter is None:
+            self.warm_fitter = warm_fitter_for(config, self.fitter)
 
     def select_people(self, frame: Frame) -> tuple[Frame, Counter]:
         """Usable people only: far out-of-image keypoints become missing, people with too few keypoints
         and beyond `people.max_people` (smallest boxes) are left out (counted by reason), people without a
-        detector id get one (free ids, left to right, so that colours stay put while people do)."""
+        detector id get one (free ids, left to right, so that colours stay put while people do) unless a
+        tracker will associate them."""
         dropped: Counter = Counter()
         if len(frame.keypoints) == 0:
             return frame, dropped
@@ -100,7 +123,7 @@ class FrameFitter:
             dropped[PERSON_MAX_PEOPLE] += len(index) - sel.max_people
             index = np.sort(index[np.argsort(-area, kind="stable")][: sel.max_people])
         kp, ids = kp[index], frame.person_ids[index].astype(np.int64)
-        anonymous = np.flatnonzero(ids < 0)
+        anonymous = np.flatnonzero(ids < 0) if self.tracker is None else []
         if len(anonymous):
             taken = set(ids[ids >= 0].tolist())
             free = (i for i in range(len(ids) + len(taken) + 1) if i not in taken)
@@ -129,17 +152,63 @@ class FrameFitter:
             return FrameFits(frame, [], [], frame.T_cam_lidar[:3, 3].copy(), dropped)
         t = time.perf_counter()
         people, origin = self.observations(frame)
+        if self.tracker is not None:
+            people = self.tracker.assign(people, frame.stamp_ns)
+            frame = replace(frame, person_ids=np.array([p.person_id for p in people], dtype=np.int64))
         return FrameFits(frame, people, [], origin, dropped, {"extract": time.perf_counter() - t})
 
     def fit_observed(self, observed: FrameFits, options: FitOptions | None = None) -> FrameFits:
         """The fit of `observe`'s people (the bench fits one observation several ways)."""
         t = time.perf_counter()
-        fits = self.fitter.fit(observed.observations, observed.frame.camera.K, observed.lidar_origin, options)
+        if self.tracker is None:
+            fits = self.fitter.fit(observed.observations, observed.frame.camera.K, observed.lidar_origin, options)
+        else:
+            fits = self._fit_tracked(observed, options)
         return replace(observed, fits=fits, latency={**observed.latency, "fit": time.perf_counter() - t})
+
+    def _fit_tracked(self, observed: FrameFits, options: FitOptions | None) -> list[BodyFit]:
+        """Warm fits for tracked people, cold ones for the others and for warm fits that lost their person;
+        the tracks updated with the result (velocity onto each fit)."""
+        tracker, stamp, K = self.tracker, observed.frame.stamp_ns, observed.frame.camera.K
+        people = observed.observations
+        warm_start = {i: tracker.warm_start(p.person_id, stamp) for i, p in enumerate(people) if p.init is None}
+        warm = [i for i, params in warm_start.items() if params is not None]
+        fits: dict[int, BodyFit] = {}
+        if warm:
+            warm_people = [replace(people[i], init=warm_start[i]) for i in warm]
+            for i, fit in zip(warm, self.warm_fitter.fit(warm_people, K, observed.lidar_origin, options),
+                              strict=True):
+                if not self._lost(fit, people[i]):
+                    fits[i] = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
+        kept = len(fits)
+        cold = [i for i in range(len(people)) if i not in fits]
+        if cold:
+            cold_fits = self.fitter.fit([people[i] for i in cold], K, observed.lidar_origin, options)
+            fits.update(zip(cold, cold_fits, strict=True))
+        lost = len(warm) - kept
+        tracker.stats.fits.update({"warm": kept, "lost": lost, "cold": len(cold) - lost})
+        return tracker.update([fits[i] for i in range(len(people))], people, stamp)
+
+    def _lost(self, fit: BodyFit, obs: PersonObservation) -> bool:
+        """A warm fit that does not explain its person any more: the cold start takes over."""
+        cfg = self.config.tracking
+        height = max(float(obs.bbox[3] - obs.bbox[1]), 1.0)
+        chamfer = fit.quality.chamfer_m
+        return (FLAG_DIVERGED in fit.flags or not fit.quality.reprojection_px <= cfg.lost_reprojection * height
+                or (np.isfinite(chamfer) and chamfer > cfg.lost_chamfer_m))
 
     def fit(self, frame: Frame, options: FitOptions | None = None) -> FrameFits:
         """The whole path of one frame (module docstring)."""
         return self.fit_observed(self.observe(frame), options)
+
+
+def warm_fitter_for(config: Config, fitter: Fitter) -> Fitter:
+    """A `Fitter` of the tracking's warm profile, sharing `fitter`'s body model (the same fitter when the
+    warm profile is the fitter's own)."""
+    warm = config.tracking.warm_profile
+    if not isinstance(fitter, Fitter) or warm == fitter.config.profile:  # a stand-in fitter (tests) fits both
+        return fitter
+    return Fitter(replace(fitter.config, profile=warm), model=fitter.model)
 
 
 # -- the library entry point --------------------------------------------------------------------------------

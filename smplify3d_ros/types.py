@@ -91,6 +91,7 @@ FLAG_DIVERGED = "diverged"  # a stage produced NaN or an exploding loss: best fi
 FLAG_ICP_NOT_CONVERGED = "icp_not_converged"
 FLAG_EXTERNAL_INIT = "external_init"  # initialized from an upstream estimate
 FLAG_FEW_KEYPOINTS = "few_keypoints"  # too few confident keypoints for a reliable image term
+FLAG_WARM_START = "warm_start"  # a tracked person, fitted from their previous fit with the short warm solve
 
 
 @dataclass

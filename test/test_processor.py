@@ -42,10 +42,12 @@ def _frames():
     return _frames.cache
 
 
-def pipeline(overrides=None) -> MessageProcessor:
-    config = load_config(overrides=overrides) if overrides else node_support.config()
-    node = load_node_config(overrides=overrides) if overrides else node_support.node_config()
-    return MessageProcessor(config, node, FACTORY, fitter=StubFitter())
+def pipeline(overrides=None, tracking: bool = False) -> MessageProcessor:
+    """A processor with the stub fitter; without tracking unless asked (these tests are about the wiring:
+    a tracker's warm starts would arrive as initial estimates)."""
+    overrides = {**(overrides or {}), "tracking": {"enabled": tracking}}
+    return MessageProcessor(load_config(overrides=overrides), load_node_config(overrides=overrides), FACTORY,
+                            fitter=StubFitter())
 
 
 def messages(msgs: dict) -> FrameMessages:
@@ -346,3 +348,31 @@ def test_ignored_keypoint_points_are_counted_in_the_diagnostics(frame):
     status = DiagnosticsReporter("test").message(T0, values, FACTORY).status[0]
     keys = {kv.key for kv in status.values}
     assert {"keypoints_ignored.out_of_format", "keypoints_ignored.non_finite"} <= keys
+
+
+def test_tracking_keeps_ids_and_warm_starts_tracked_people(frame):
+    """With tracking, anonymous people get their track's id frame after frame, their next fit starts from
+    the last one (a warm start), velocity comes with every fit after the first, and a clock reset ends the
+    tracks."""
+    import dataclasses
+
+    p = pipeline(tracking=True)
+    anonymous = dataclasses.replace(frame, keypoints=frame.keypoints)
+    ids = []
+    for k in range(3):
+        msgs = node_support.frame_at(FACTORY, CAMERA, anonymous, T0 + 0.1 * k)
+        from msg_adapters import write_keypoints
+
+        msgs["keypoints"] = write_keypoints(frame.keypoints, np.array([-1, -1]), T0 + 0.1 * k,
+                                            bag_fixture.CAMERA_FRAME, FACTORY)
+        result = p.process(messages(msgs))
+        assert result.ok
+        ids.append(sorted(f.person_id for f in result.fits))
+    assert ids[0] == ids[1] == ids[2] and len(ids[0]) == 2
+    people = p.fitter.calls[-1]
+    assert all(person.init is not None for person in people), "tracked people start from their last fit"
+    assert all(f.velocity is not None and "warm_start" in f.flags for f in result.fits)
+    values = p.stats.values()
+    assert values["tracking.fits_cold"] == 2 and values["tracking.fits_warm"] == 4
+    p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0 - 100.0)))  # a clock reset
+    assert p.stats.values()["tracking.tracks_ended"] == 2

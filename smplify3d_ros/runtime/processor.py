@@ -54,6 +54,7 @@ from smplify3d_ros.runtime.messages import (
 from smplify3d_ros.runtime.outputs import HriSettings, OutputBuilder
 from smplify3d_ros.runtime.stats import ProcessorStats
 from smplify3d_ros.runtime.transforms import Transforms, TransformUnavailable, transform_fit
+from smplify3d_ros.tracking.tracker import Tracker
 from smplify3d_ros.types import BodyFit, BodyParams, Frame
 
 _LOG_EVERY_S = 5.0  # each drop reason is logged at most this often (with the count in between)
@@ -107,13 +108,15 @@ class MessageProcessor:
         self.node = node
         self.factory = resolve_factory(factory)
         self.log = log or logging.getLogger(__name__)
-        self.frames = FrameFitter(config, fitter)
+        self.tracker = Tracker(config.tracking) if config.tracking.enabled else None
+        self.frames = FrameFitter(config, fitter, self.tracker)
         self.fitter = self.frames.fitter
         self.transforms = transforms or Transforms(node.extrinsic, log=self.log)
         self.outputs = OutputBuilder(node.publish, self.fitter.faces_np, self.factory,
                                      HriSettings(node.topics.hri_bodies))
         self.keep_frames = keep_frames
         self.stats = ProcessorStats(latency_window=node.diagnostics.latency_window)
+        self.stats.tracking = None if self.tracker is None else self.tracker.stats
         self._last_stamp_ns: int | None = None
         self._init_docs: deque[tuple[int, str, dict[int, BodyParams]]] = deque(maxlen=50)
         self._lock = threading.Lock()
@@ -185,6 +188,8 @@ class MessageProcessor:
         self.log.warning(f"time jumped back by {back:.3f} s: clock reset (bag loop?); state cleared")
         self._last_stamp_ns = None
         self.stats.time_resets += 1
+        if self.tracker is not None:
+            self.tracker.reset()
 
     def process(self, msgs: FrameMessages) -> FrameResult:
         """Fit one frame. Never raises for bad input: see the module docstring."""

@@ -69,6 +69,7 @@ class ProcessorStats:
     flags: Counter = field(default_factory=Counter)  # fit flags (image_only, diverged, ...)
     keypoints_ignored: Counter = field(default_factory=Counter)  # keypoint points not used, by reason
     latency_window: int = 100  # frames the latency statistics are computed over
+    tracking: Any = None  # tracking.tracker.TrackerStats of the processor's tracker (None: no tracking)
     latency: dict[str, LatencyStats] = field(default_factory=dict)
     people_per_frame: deque = field(default_factory=lambda: deque(maxlen=100))
 
@@ -98,6 +99,10 @@ class ProcessorStats:
                                 ("keypoints_ignored", self.keypoints_ignored)):
             values.update({f"{prefix}.{key}": n for key, n in sorted(counter.items())})
         values["init_bodies_used"] = self.init_bodies_used
+        if self.tracking is not None:
+            values.update({"tracking.tracks_started": self.tracking.tracks_started,
+                           "tracking.tracks_ended": self.tracking.tracks_ended,
+                           **{f"tracking.fits_{k}": n for k, n in sorted(self.tracking.fits.items())}})
         for stage, lat in self.latency.items():
             if lat.recent:
                 values[f"latency_ms.{stage}.mean"] = 1e3 * lat.mean

@@ -40,6 +40,9 @@ class BagSpec:
     n_frames: int
     storage: str = "mcap"  # "mcap" (zstd chunk compression) or "sqlite3" (uncompressed)
     raw_image: bool = True  # also write sensor_msgs/Image next to the CompressedImage
+    track_ids: bool = True  # the keypoints carry the detector's track ids (False: person -1, anonymous)
+    view_width_deg: float = VIEW_WIDTH_DEG  # the velodyne driver's `view_width` (forward, centred)
+    truth_vertices: bool = True  # the ground truth holds each body's mesh (False: parameters and joints)
 
 
 @dataclass(frozen=True)
@@ -69,14 +72,15 @@ def view_mask(points_lidar: np.ndarray, view_width_deg: float = VIEW_WIDTH_DEG) 
     return np.abs(azimuth) <= view_width_deg / 2.0
 
 
-def truth_frame(sim: Any, stamp_ns: int, frame_id: str, keep: np.ndarray) -> TruthFrame:
+def truth_frame(sim: Any, stamp_ns: int, frame_id: str, keep: np.ndarray, vertices: bool = True) -> TruthFrame:
     """The ground truth of a simulated frame: every person, detected or not, with the returns on it in
-    the published scan (`keep`: the points the cloud holds)."""
+    the published scan (`keep`: the points the cloud holds), with or without the meshes."""
     detected = {int(i) for i in sim.frame.person_ids}
     labels = np.asarray(sim.point_labels)[keep]
     return TruthFrame(stamp_ns, frame_id, [
         TruthBody(
-            person_id=p.person_id, params=p.params, keypoints3d=p.keypoints3d, vertices=p.vertices,
+            person_id=p.person_id, params=p.params, keypoints3d=p.keypoints3d,
+            vertices=p.vertices if vertices else None,
             detected=p.person_id in detected, visible_fraction=float(sim.visible_fraction.get(p.person_id, 0.0)),
             lidar_points=int(np.count_nonzero(labels == p.person_id)),
         )
@@ -141,14 +145,14 @@ def frame_messages(
         yield topics.image, "sensor_msgs/msg/Image", numpy_to_image(frame.image, "rgb8", stamp, cam, factory)
     yield (topics.compressed_image, "sensor_msgs/msg/CompressedImage",
            numpy_to_compressed(frame.image, stamp, cam, factory, quality=90))
-    keep = view_mask(frame.points_lidar)
+    keep = view_mask(frame.points_lidar, spec.view_width_deg)
     fields = {name: values[keep] for name, values in sim.lidar_fields.items()}
     yield (topics.points, "sensor_msgs/msg/PointCloud2",
            velodyne_cloud(factory, stamp, topics.lidar_frame, frame.points_lidar[keep], fields))
-    yield (topics.keypoints, "sensor_msgs/msg/PointCloud2",
-           write_keypoints(frame.keypoints, frame.person_ids, stamp, cam, factory))
+    ids = frame.person_ids if spec.track_ids else np.full(len(frame.person_ids), -1, dtype=np.int64)
+    yield (topics.keypoints, "sensor_msgs/msg/PointCloud2", write_keypoints(frame.keypoints, ids, stamp, cam, factory))
     string, joint_names = "std_msgs/msg/String", list(model.joint_names)
     hmr = truth_document(hmr_frame(sim, model, stamp_ns, cam), joint_names)
     yield HMR_TOPIC, string, factory.make(string, data=hmr)
-    truth = truth_document(truth_frame(sim, stamp_ns, cam, keep), joint_names)
+    truth = truth_document(truth_frame(sim, stamp_ns, cam, keep, spec.truth_vertices), joint_names)
     yield GROUND_TRUTH_TOPIC, string, factory.make(string, data=truth)

@@ -42,6 +42,12 @@ BAGS: tuple[BagSpec, ...] = (
     BagSpec("close", "close", seed=0, n_frames=25),
     BagSpec("far", "far", seed=0, n_frames=25),
     BagSpec("walk_sqlite3", "walk", seed=3, n_frames=6, storage="sqlite3"),
+    # tracking sequences: people walking, stopping, turning and crossing for 6 s, the detector giving track
+    # ids in one and none in the other (compressed images only, the camera's side of the scan, no meshes)
+    BagSpec("people_ids", "people", seed=5, n_frames=60, raw_image=False, view_width_deg=110.0,
+            truth_vertices=False),
+    BagSpec("people_anonymous", "people", seed=8, n_frames=60, raw_image=False, track_ids=False,
+            view_width_deg=110.0, truth_vertices=False),
 )
 
 

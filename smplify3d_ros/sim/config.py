@@ -365,9 +365,16 @@ class ScenarioConfig:
     heading_spread_deg: float
     approach: bool
     lateral_offset_deg: float
+    pause_s: tuple[float, float]
+    turn_s: float
+    path_half_length_m: float
 
     def __post_init__(self) -> None:
         require(1 <= self.n_people[0] <= self.n_people[1] <= 10, "n_people: need 1 <= min <= max <= 10")
+        _check_range(self.pause_s, "pause_s")
+        require(self.path_half_length_m >= 0.0, "path_half_length_m: must be >= 0 (0: beyond the image edges)")
+        require(0.0 <= self.turn_s <= max(self.pause_s[0], 0.0) or self.turn_s == 0.0,
+                "turn_s: must be in [0, the shortest pause]")
         _check_range(self.distance_m, "distance_m", 0.5)
         require(0.0 <= self.heading_spread_deg <= 90.0, "heading_spread_deg: must be in [0, 90]")
         require(0.0 <= self.lateral_offset_deg <= 60.0, "lateral_offset_deg: must be in [0, 60]")

@@ -245,7 +245,8 @@ def simulate_scenario(
 # -- sequences ----------------------------------------------------------------------------------------
 @dataclass
 class _Walker:
-    """A person walking back and forth along a straight segment at constant speed."""
+    """A person walking back and forth along a straight segment at constant speed; at each end they stand
+    for `pause` seconds, turning round over `turn` of them (pause 0: an instant turn)."""
 
     person_id: int
     preset: str
@@ -257,18 +258,30 @@ class _Walker:
     start: float  # m along the path at t = 0 (path coordinate in [0, 4 * half_length))
     stride: float  # m per gait cycle
     phase0: float
+    pause: float = 0.0  # s standing at each end of the segment
+    turn: float = 0.0  # s of the pause spent turning round
 
-    def at(self, t: float) -> tuple[np.ndarray, float, float]:
-        """(position, heading, gait phase) at time t."""
+    def at(self, t: float) -> tuple[np.ndarray, float, float, bool]:
+        """(position, heading, gait phase, walking) at time t."""
         L = self.half_length
-        travelled = self.speed * t
-        p = (self.start + travelled) % (4 * L)
-        forward = p < 2 * L
-        s = (p if forward else 4 * L - p) - L
-        direction = self.direction if forward else -self.direction
-        heading = float(np.arctan2(direction[1], direction[0]))
-        phase = (self.phase0 + travelled / self.stride) % 1.0
-        return self.centre + s * self.direction, heading, phase
+        leg = 2 * L / self.speed  # s to walk the segment once
+        cycle = 2 * (leg + self.pause)
+        clock = self.start / self.speed + t
+        laps, tau = divmod(clock, cycle)
+        walked = laps * 2 * leg  # s spent walking, for the gait phase
+        for sign in (1.0, -1.0):  # out along `direction`, then back
+            direction = sign * self.direction
+            heading = float(np.arctan2(direction[1], direction[0]))
+            if tau < leg:
+                phase = (self.phase0 + self.speed * (walked + tau - self.start / self.speed) / self.stride) % 1.0
+                return self.centre + sign * (self.speed * tau - L) * self.direction, heading, phase, True
+            walked, tau = walked + leg, tau - leg
+            if tau < self.pause:
+                turned = np.pi * min(tau / self.turn, 1.0) if self.turn > 0 else 0.0
+                phase = (self.phase0 + self.speed * (walked - self.start / self.speed) / self.stride) % 1.0
+                return self.centre + sign * L * self.direction, heading + turned, phase, False
+            tau -= self.pause
+        raise AssertionError("unreachable: tau < cycle")
 
 
 def _walkers(
@@ -296,7 +309,7 @@ def _walkers(
             sign = 1.0 if pid % 2 == 0 else -1.0
             direction = sign * np.array([-np.sin(spread), np.cos(spread)])
             centre = np.array([depths[pid], 0.0])
-            half_length = depths[pid] * np.tan(half_fov) + 1.0
+            half_length = sc.path_half_length_m or depths[pid] * np.tan(half_fov) + 1.0  # 0: out of view
             start = (half_length - speed * duration / 2.0) % (4 * half_length)
             if n == 1:
                 start = float(rng.uniform(0.0, 4 * half_length))
@@ -312,6 +325,8 @@ def _walkers(
                 start,
                 stride=1.0,
                 phase0=float(rng.random()),
+                pause=float(rng.uniform(*sc.pause_s)) if sc.pause_s[1] > 0 else 0.0,
+                turn=sc.turn_s,
             )
         )  # stride: set from the stature
     return walkers
@@ -325,8 +340,9 @@ def simulate_sequence(
     Scenarios (`cfg.sequence.scenarios`): "walk" one person crossing at 3 to 8 m; "crossing" 2 to 3
     people crossing at different depths, occluding each other mid-sequence; "close" one person walking
     towards the robot and back at 1.5 to 3 m near the image's edge, partly out of the frame; "far" one
-    or two people crossing at 10 to 15 m. The static scene stays fixed; each frame has fresh sensor,
-    detector and HMR noise.
+    or two people crossing at 10 to 15 m; "people" 2 to 3 people at 2 to 8 m walking, stopping, turning
+    round and crossing each other (the tracking sequences). The static scene stays fixed; each frame has
+    fresh sensor, detector and HMR noise.
     """
     if scenario not in cfg.sequence.scenarios:
         raise ValueError(f"unknown scenario {scenario!r}; known: {', '.join(cfg.sequence.scenarios)}")
@@ -359,11 +375,10 @@ def simulate_sequence(
         t = k / rate_hz
         placements = []
         for w in walkers:
-            position, heading, phase = w.at(t)
+            position, heading, phase, walking = w.at(t)
             pose_rng = np.random.default_rng([seed, w.person_id])  # same joint offsets every frame
-            pose = sample_pose(
-                model, "walking", pose_rng, phase=phase, variation_scale=cfg.people.pose_variation_scale
-            )
+            pose = sample_pose(model, "walking" if walking else "standing", pose_rng,
+                               phase=phase if walking else None, variation_scale=cfg.people.pose_variation_scale)
             placements.append(PersonPlacement(w.person_id, w.preset, w.shape, pose, position, heading))
         people = pose_people(model, placements, mount)
         scene = assemble(np.random.default_rng([seed, 1]), model, mount, people, objects, cfg.render)

@@ -19,6 +19,7 @@ class TrackingConfig:
     accel_sigma_mps2: float  # the constant-velocity filter's process noise: unmodelled acceleration
     position_sigma_m: float  # the filter's measurement noise: the fitted pelvis position
     warm_start: bool  # fit tracked people from their predicted last fit with the short warm solve
+    warm_profile: str  # the fitting.profiles entry of the warm solve
     lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of its box height) is lost
     lost_chamfer_m: float  # ... or whose mesh is farther than this from its points
 
