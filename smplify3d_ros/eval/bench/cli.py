@@ -70,7 +70,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--sensor", default=None,
         help="simulated LiDAR (default: the scenario's): vlp16, ouster32, ouster64, ouster128 (or os1_64, ...), livox",
     )
-    parser.add_argument("--scenes", type=int, default=40, help="number of seeded scenes (default 40)")
+    parser.add_argument("--scenes", type=int, default=40,
+                        help="number of seeded scenes (default 40; with --sequences: sequences, give e.g. 2)")
+    parser.add_argument("--sequences", nargs="?", const="people", default=None, metavar="SCENARIO",
+                        help="track people through 10 Hz sequences (sim.sequence.scenarios, default people) "
+                             "instead of single scenes: tracked vs single-frame, with and without detector ids")
+    parser.add_argument("--frames", type=int, default=40, help="frames per sequence (--sequences; default 40)")
     parser.add_argument("--seed", type=int, default=None,
                         help="seed of the first scene (default: sim.bench.report_seed_start, 1000: the report "
                         "seeds; seeds 0-999 are for tuning)")
@@ -143,6 +148,11 @@ def plan(args: argparse.Namespace, base: dict[str, Any]) -> Plan:
 
 def run(args: argparse.Namespace) -> int:
     base = overrides_from(args.overrides)
+    if args.sequences is not None:
+        from smplify3d_ros.eval import sequences
+
+        args.overrides_mapping = base
+        return sequences.run(args)
     try:
         p = plan(args, base)
     except ValueError as e:
