@@ -73,6 +73,9 @@ class PersonObservation:
     bbox: np.ndarray  # (4,) float64 x_min, y_min, x_max, y_max (px, undistorted)
     points: np.ndarray  # (M, 3) float32 the person's LiDAR points in the camera frame, m
     init: BodyParams | None = None  # external initial estimate, if any
+    # (4,) float64 the frame's ground plane n·p + d = 0 in the camera frame (n unit, pointing up; d the
+    # camera's height above it), None when no plane was fitted to the scan
+    ground: np.ndarray | None = None
 
 
 @dataclass

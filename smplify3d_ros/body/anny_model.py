@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import roma
 import torch
 
-from smplify3d_ros.body.base import BodyModel, BodyOutput
+from smplify3d_ros.body.base import BodyLinearization, BodyModel, BodyOutput, left_jacobian_so3
 from smplify3d_ros.body.joints import BODY_JOINTS
 from smplify3d_ros.keypoints import NUM_KEYPOINTS, PART_INDEX
 
@@ -48,6 +48,9 @@ PART_ROOT_BONES: dict[str, str] = {
 # Anny axes (x left, y back, z up) from canonical axes (x left, y up, z forward): a = C @ s.
 C_ANNY_FROM_CANONICAL = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
+# Phenotypes are kept this far inside [0, 1] when mapped to unconstrained coordinates (logit(1e-4) = -9.2).
+_PHENOTYPE_EPS = 1e-4
+
 # Parts of the Anny segmentation that are inside the body (never seen by a camera or a LiDAR).
 _INTERNAL_SEGMENTS = ("eye_back.L", "eye_back.R", "eye_cavity.L", "eye_cavity.R", "mouth_cavity", "tongue")
 
@@ -62,6 +65,7 @@ class _VertexSubset:
     blendshapes: torch.Tensor  # (C, V, 3) blend-shape offsets
     bone_weights: torch.Tensor  # (V, k) skinning weights
     bone_indices: torch.Tensor  # (V, k) their bones
+    joint_weights: torch.Tensor  # (V, k, J) skinning weight of each influence whose bone descends from joint j
 
 
 class AnnyBody(BodyModel):
@@ -76,12 +80,14 @@ class AnnyBody(BodyModel):
         model.requires_grad_(False)
         self.anny = model
         self._subset_cache: _VertexSubset | None = None
+        self._rest_cache: tuple | None = None  # (subset, shape, rest vertices, rest bone poses), see `_rest`
         self.shape_names = tuple(model.phenotype_labels)
         self.shape_sigma = shape_sigma
         self.shape_bound_weight = shape_bound_weight
         labels = list(model.bone_labels)
         self.bone_index = [labels.index(JOINT_TO_BONE[j]) for j in BODY_JOINTS]
         self.root_bone = labels.index("root")
+        self._init_kinematics(model)
         regressor = anny.KeypointsRegressor.coco(model)
         self._init_keypoints(regressor.regression_weights[:NUM_KEYPOINTS].to(dtype), keypoint_support)
         self.register_buffer("C", C_ANNY_FROM_CANONICAL.to(dtype))
@@ -104,6 +110,22 @@ class AnnyBody(BodyModel):
         used = (weights != 0).any(dim=0).nonzero()[:, 0]
         self.register_buffer("kp_support", used)
         self.register_buffer("kp_sparse", weights[:, used])
+
+    def _init_kinematics(self, model) -> None:
+        """What `linearize` needs of Anny's skeleton: which bones each optimized joint moves, each joint's
+        parent bone, and the reference orientations of Anny's 'local-ref' pose parameterization."""
+        parents = list(model.bone_parents)
+        moved = torch.zeros(len(parents), len(BODY_JOINTS))
+        for j, bone in enumerate(self.bone_index):
+            for b in range(len(parents)):
+                i = b
+                while i > 0 and i != bone:
+                    i = parents[i]
+                moved[b, j] = float(i == bone)
+        self.register_buffer("bone_moved_by_joint", moved)  # (bones, J)
+        self.joint_parent_bone = [parents[b] for b in self.bone_index]
+        self._linearizable = (model.pose_parameterization == "local-ref"
+                              and model.reference_bone_orientations is not None)
 
     def _face_parts(self, model, labels: list[str]) -> torch.Tensor:
         parents = list(model.bone_parents)
@@ -133,9 +155,21 @@ class AnnyBody(BodyModel):
 
     def shape_prior(self, shape: torch.Tensor) -> torch.Tensor:
         """Phenotypes near the population mean (0.5, spread `shape_sigma`) and inside [0, 1]."""
-        near_mean = (((shape - 0.5) / self.shape_sigma) ** 2).sum(-1)
-        outside = (torch.relu(-shape) + torch.relu(shape - 1.0)) ** 2
-        return near_mean + self.shape_bound_weight * outside.sum(-1)
+        return (self.shape_prior_residuals(shape) ** 2).sum(-1)
+
+    def shape_prior_residuals(self, shape: torch.Tensor) -> torch.Tensor:
+        near_mean = (shape - 0.5) / self.shape_sigma
+        outside = (torch.relu(-shape) + torch.relu(shape - 1.0)) * self.shape_bound_weight**0.5
+        return torch.cat([near_mean, outside], -1)
+
+    def shape_from_free(self, free: torch.Tensor) -> torch.Tensor:
+        """Phenotypes = sigmoid(free): inside (0, 1) whatever the optimizer does (a penalty only pushes
+        back once outside, and a 2048 px image's pixel residuals outweighed it)."""
+        return torch.sigmoid(free)
+
+    def shape_to_free(self, shape: torch.Tensor) -> torch.Tensor:
+        # phenotypes given at 0 or 1 exactly (presets, clipped estimates) map to a finite logit
+        return torch.logit(shape.clamp(_PHENOTYPE_EPS, 1.0 - _PHENOTYPE_EPS))
 
     def _posed_canonical(self, shape: torch.Tensor, pose: torch.Tensor, subset: _VertexSubset | None = None):
         """Vertices (all, or those of `subset`) and joints of the posed body in canonical axes, pelvis at the
@@ -149,11 +183,8 @@ class AnnyBody(BodyModel):
             out = self.anny(pose_parameters=deltas, phenotype_kwargs=shape.expand(B, -1))
             verts, bone_poses = out["vertices"], out["bone_poses"]
         else:  # Anny's forward, shaping and skinning only the requested vertices
-            anny = self.anny
-            no_changes = shape.new_zeros(B, 0)
-            coeffs = anny._get_phenotype_blendshape_coefficients(shape.expand(B, -1), no_changes, no_changes)
-            rest_vertices, rest_bone_poses = self._rest_subset(coeffs, subset)
-            transforms, bone_poses = anny.get_bone_transforms(deltas, rest_bone_poses)
+            rest_vertices, rest_bone_poses = self._rest(shape.expand(B, -1), subset)
+            transforms, bone_poses = self.anny.get_bone_transforms(deltas, rest_bone_poses)
             verts = _skin(rest_vertices, subset.bone_weights, subset.bone_indices, transforms)
         pelvis = bone_poses[:, self.root_bone, :3, 3]  # (B, 3)
         verts = (verts - pelvis[:, None]) @ C  # C^T applied to row vectors
@@ -169,16 +200,33 @@ class AnnyBody(BodyModel):
             return cached
         anny = self.anny
         index = torch.cat([self.kp_support, vertex_index])
+        weights, bones = anny.vertex_bone_weights[index], anny.vertex_bone_indices[index]
         subset = _VertexSubset(
             vertex_index,
             index,
             anny.template_vertices[index],
             anny.blendshapes[:, index].contiguous(),
-            anny.vertex_bone_weights[index],
-            anny.vertex_bone_indices[index],
+            weights,
+            bones,
+            weights[..., None] * self.bone_moved_by_joint.to(weights.dtype)[bones],
         )
         self._subset_cache = subset
         return subset
+
+    def _rest(self, shape: torch.Tensor, subset: _VertexSubset) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rest vertices of `subset` and rest bone poses of phenotypes `shape` (B, S), kept for the last
+        shape values and subset: stages that move pose or position only (most of a fit) call the model
+        with the same shape at every step, and shaping is half of a forward pass."""
+        cached = self._rest_cache
+        if (cached is not None and not shape.requires_grad and cached[0] is subset
+                and cached[1].shape == shape.shape and torch.equal(cached[1], shape)):
+            return cached[2], cached[3]
+        no_changes = shape.new_zeros(shape.shape[0], 0)
+        coeffs = self.anny._get_phenotype_blendshape_coefficients(shape, no_changes, no_changes)
+        rest_vertices, rest_bone_poses = self._rest_subset(coeffs, subset)
+        if not shape.requires_grad:
+            self._rest_cache = (subset, shape.detach().clone(), rest_vertices, rest_bone_poses)
+        return rest_vertices, rest_bone_poses
 
     def _rest_subset(self, coeffs: torch.Tensor, subset: _VertexSubset) -> tuple[torch.Tensor, torch.Tensor]:
         """Rest vertices of `subset` and rest bone poses for blend-shape `coeffs` (B, C).
@@ -227,6 +275,72 @@ class AnnyBody(BodyModel):
         keypoints = torch.einsum("kv,bvd->bkd", kp_weights.to(verts.dtype), kp_verts) @ R.transpose(1, 2)
         keypoints = keypoints + transl[:, None]
         return BodyOutput(verts, joints, keypoints)
+
+
+    def linearize(
+        self,
+        shape: torch.Tensor,
+        pose: torch.Tensor,
+        root_orient: torch.Tensor,
+        transl: torch.Tensor,
+        vertex_index: torch.Tensor,
+    ) -> BodyLinearization:
+        """Analytic Jacobians of linear blend skinning (see `BodyModel.linearize`).
+
+        A change dθ_j of joint j's axis-angle turns bone j, and every bone below it, by the angular
+        velocity ω_j = R_p U_p^T C J_l(θ_j) dθ_j about the joint's posed head c_j (Anny's 'local-ref'
+        chain W_j = W_p U_p^T D_j U_j, D_j = C R(θ_j) C^T; R_p the posed parent bone's rotation, U_p its
+        reference orientation). A skinned vertex v = Σ_k w_k T_k v_rest then moves by
+        ω_j × Σ_k w_k [bone k below j] (T_k v_rest − c_j): exact, from one forward pass.
+        """
+        if not self._linearizable:
+            return super().linearize(shape, pose, root_orient, transl, vertex_index)
+        subset = self._subset(vertex_index)
+        anny, C = self.anny, self.C.to(pose.dtype)
+        B = pose.shape[0]
+        rot = C @ roma.rotvec_to_rotmat(pose) @ C.T
+        deltas = torch.eye(4, dtype=pose.dtype, device=pose.device).repeat(B, len(anny.bone_labels), 1, 1)
+        deltas[:, self.bone_index, :3, :3] = rot
+        rest_vertices, rest_bone_poses = self._rest(shape.expand(B, -1), subset)
+        transforms, bone_poses = anny.get_bone_transforms(deltas, rest_bone_poses)
+        Tk = transforms[:, subset.bone_indices]  # (B, V, k, 4, 4)
+        per_bone = (Tk[..., :3, :3] @ rest_vertices[:, :, None, :, None])[..., 0] + Tk[..., :3, 3]
+        verts = (subset.bone_weights[..., None] * per_bone).sum(2)  # (B, V, 3), Anny world
+        pelvis = bone_poses[:, self.root_bone, :3, 3]
+        centres = bone_poses[:, self.bone_index, :3, 3]  # (B, J, 3)
+        lever = torch.einsum("vkj,bvkd->bvjd", subset.joint_weights, per_bone)
+        lever = lever - subset.joint_weights.sum(1)[None, ..., None] * centres[:, None]  # (B, V, J, 3)
+        U = anny.reference_bone_orientations.to(pose.dtype)[self.joint_parent_bone]
+        axes = bone_poses[:, self.joint_parent_bone, :3, :3] @ U.transpose(-1, -2) @ C @ left_jacobian_so3(pose)
+        # to the camera frame: canonical = C^T (anny − pelvis), camera = R_root canonical + transl
+        R_root = roma.rotvec_to_rotmat(root_orient)
+        M = R_root @ C.T  # (B, 3, 3)
+        lever = torch.einsum("bij,bvkj->bvki", M, lever)
+        axes = torch.einsum("bij,bkjl->bkil", M, axes).transpose(-1, -2)  # (B, J, 3 columns, 3 xyz)
+        centred = torch.einsum("bij,bvj->bvi", M, verts - pelvis[:, None])  # camera-frame offsets from transl
+        root_axes = left_jacobian_so3(root_orient).transpose(-1, -2)  # (B, 3 columns, 3 xyz)
+        n = len(self.kp_support)
+        weights = self.kp_sparse.to(verts.dtype)
+
+        def jacobian(lever_rows: torch.Tensor, centred_rows: torch.Tensor) -> torch.Tensor:
+            """(B, r, J, 3) lever arms and (B, r, 3) offsets -> (B, r, 3, P)."""
+            r = lever_rows.shape[1]
+            d_pose = torch.cross(axes[:, None], lever_rows[:, :, :, None].expand(-1, -1, -1, 3, -1), dim=-1)
+            d_pose = d_pose.permute(0, 1, 4, 2, 3).reshape(B, r, 3, -1)  # column j * 3 + c
+            d_root = torch.cross(root_axes[:, None], centred_rows[:, :, None].expand(-1, -1, 3, -1), dim=-1)
+            d_transl = torch.eye(3, dtype=pose.dtype, device=pose.device).expand(B, r, 3, 3)
+            return torch.cat([d_pose, d_root.transpose(-1, -2), d_transl], -1)
+
+        def rows(index: torch.Tensor) -> torch.Tensor:
+            index = index + n  # positions after the keypoint support
+            picked = torch.gather(lever, 1, index[..., None, None].expand(-1, -1, *lever.shape[2:]))
+            return jacobian(picked, torch.gather(centred, 1, index[..., None].expand(-1, -1, 3)))
+
+        # keypoints are fixed combinations of vertices, and so are their lever arms
+        kp_lever = torch.einsum("kv,bvjd->bkjd", weights, lever[:, :n])
+        kp_centred = torch.einsum("kv,bvd->bkd", weights, centred[:, :n])
+        values = centred + transl[:, None]
+        return BodyLinearization(values[:, n:], kp_centred + transl[:, None], jacobian(kp_lever, kp_centred), rows)
 
 
 def _skin(

@@ -20,6 +20,7 @@ from smplify3d_ros.body.base import PARAM_FIELDS
 from smplify3d_ros.fitting import init as initializer
 from smplify3d_ros.fitting.config import FittingConfig
 from smplify3d_ros.fitting.icp import align_mesh_to_points
+from smplify3d_ros.fitting.limbs import limb_depth_targets
 from smplify3d_ros.fitting.losses import nearest_sq_distances, project
 from smplify3d_ros.fitting.options import FitOptions
 from smplify3d_ros.fitting.stages import FitProblem, FitState, StageSpec, optimize, run_stage
@@ -68,6 +69,8 @@ class Batch:
     flags: list[set[str]]
     builtin: np.ndarray  # (B,) bool: started from the built-in initializer
     state: FitState | None = None
+    hypotheses: list[list[BodyParams]] = dataclasses.field(default_factory=list)  # built-in starts per person
+    keypoint_depth: np.ndarray | None = None  # (B, 17) limb-depth targets, camera z (NaN: none)
     problem: FitProblem | None = None  # the stages' observations (also what the fit quality is measured on)
     icp_ok: np.ndarray | None = None  # (B,) bool
     final_loss: torch.Tensor | None = None  # (B,)
@@ -75,6 +78,19 @@ class Batch:
     @property
     def size(self) -> int:
         return len(self.people)
+
+    def take(self, rows: np.ndarray) -> Batch:
+        """The people of `rows` (repeats allowed), without a state: a batch of hypotheses."""
+        index = torch.as_tensor(rows, device=self.keypoints.device)
+        return Batch(
+            people=[self.people[i] for i in rows], K=self.K, lidar_origin=self.lidar_origin,
+            options=self.options, rng=self.rng, keypoints=self.keypoints[index],
+            confidence=self.confidence[index], use_lidar=self.use_lidar[rows],
+            occluded_image=[self.occluded_image[i] for i in rows],
+            occluded_lidar=[self.occluded_lidar[i] for i in rows], occluded_joints=self.occluded_joints[rows],
+            flags=[set() for _ in rows], builtin=self.builtin[rows],
+            keypoint_depth=None if self.keypoint_depth is None else self.keypoint_depth[rows],
+        )
 
 
 def _pad_rows(rows: list[np.ndarray], width: int, fill) -> tuple[np.ndarray, np.ndarray]:
@@ -167,11 +183,14 @@ class Fitter:
         )
 
     def _initialize(self, batch: Batch) -> None:
-        """Step 1: an external estimate of this model when a person has one, else the built-in one."""
+        """Step 1: an external estimate of this model when a person has one, else the built-in one's
+        hypotheses (the first stands in until `_refine_builtin` picks one)."""
         cfg = self.config
         mean_shape = self.model.mean_shape().cpu().double().numpy()
         K = batch.K.cpu().double().numpy()
         params: list[BodyParams] = []
+        batch.hypotheses = [[] for _ in batch.people]
+        batch.keypoint_depth = np.full((batch.size, 17), np.nan)
         for i, p in enumerate(batch.people):
             if p.init is not None and p.init.model == self.model.name:
                 params.append(p.init.copy())
@@ -180,32 +199,55 @@ class Fitter:
             if p.init is not None:
                 log.warning("person %d: initial estimate is for %r, not %r; using the built-in init",
                             p.person_id, p.init.model, self.model.name)
-            root, pelvis = initializer.builtin_root(p, K, cfg.init, bool(batch.use_lidar[i]))
-            params.append(BodyParams(self.model.name, mean_shape.copy(), self._neutral_pose.copy(), root, pelvis))
+            for root, pelvis in initializer.builtin_hypotheses(p, K, cfg.init, bool(batch.use_lidar[i])):
+                batch.hypotheses[i].append(BodyParams(self.model.name, mean_shape.copy(),
+                                                      self._neutral_pose.copy(), root, pelvis))
+            params.append(batch.hypotheses[i][0])
             batch.builtin[i] = True
-        batch.state = FitState(*self.model.params_tensors(params))
-        if batch.builtin.any():  # place the pelvis: the model's rotation centre may not be its pelvis (SMPL)
-            state = batch.state
+            if batch.use_lidar[i]:
+                depth = float(batch.hypotheses[i][0].transl[2])
+                batch.keypoint_depth[i] = limb_depth_targets(p.keypoints, K, p.points, depth, cfg.init)
+        batch.state = self._placed_state(params, batch.builtin)
+
+    def _placed_state(self, params: list[BodyParams], builtin: np.ndarray) -> FitState:
+        """The state of these parameters, built-in estimates moved so that their hip midpoint is where
+        their `transl` says (the model's rotation centre may not be its pelvis: SMPL)."""
+        state = FitState.from_params(self.model, params)
+        if builtin.any():
             out = self._forward(state)
             pelvis_now = 0.5 * (out.keypoints[:, 11] + out.keypoints[:, 12])
-            rows = torch.as_tensor(np.flatnonzero(batch.builtin), device=self.device)
+            rows = torch.as_tensor(np.flatnonzero(builtin), device=self.device)
             with torch.no_grad():
                 state.transl[rows] += state.transl[rows] - pelvis_now[rows]
+        return state
 
     def _refine_builtin(self, batch: Batch) -> None:
-        """The built-in estimate's limbs: a short fit to the 2D keypoints with strong priors, translation
-        fixed (people with an external estimate keep theirs)."""
+        """The built-in estimate: every heading hypothesis of every person refined together (pose,
+        orientation and position against the keypoints, the points and the limb depths, anatomical
+        priors only: there is no estimate to hold), and each person's lowest final loss kept. People
+        with an external estimate keep theirs."""
         cfg = self.config
         if not batch.builtin.any() or cfg.init.refine_iterations <= 0:
             return
-        state = batch.state
-        problem = self._problem(batch)
-        spec = StageSpec("init", ("pose", "root_orient"), cfg.init.refine_iterations, None,
-                         cfg.optimizer.weights.sigma_px, 0.0, priors=True)
-        keep = state.clone()
-        diverged = torch.zeros(batch.size, dtype=torch.bool, device=self.device)
-        run_stage(self.model, state, problem, spec, _refine_profile(cfg), cfg.divergence_factor, diverged)
-        state.copy_rows_from(keep, torch.as_tensor(~batch.builtin, device=self.device))
+        rows = np.array([i for i in range(batch.size) for _ in batch.hypotheses[i]], dtype=np.int64)
+        trial = batch.take(rows)
+        trial.state = self._placed_state([h for i in range(batch.size) for h in batch.hypotheses[i]],
+                                         np.ones(len(rows), dtype=bool))
+        problem = self._problem(trial)
+        params = ("pose", "root_orient", "transl") if cfg.init.refine_chamfer > 0 else ("pose", "root_orient")
+        spec = StageSpec("init", params, cfg.init.refine_iterations, None, cfg.optimizer.weights.sigma_px,
+                         cfg.init.refine_chamfer, priors=True, hold=False,
+                         keypoint_depth_weight=cfg.init.refine_keypoint_depth)
+        diverged = torch.zeros(len(rows), dtype=torch.bool, device=self.device)
+        _, loss = run_stage(self.model, trial.state, problem, spec, _refine_profile(cfg), cfg.divergence_factor,
+                            diverged)
+        loss = torch.where(diverged | ~torch.isfinite(loss), torch.full_like(loss, float("inf")), loss)
+        for i in np.flatnonzero(batch.builtin):
+            mine = np.flatnonzero(rows == i)
+            best = int(mine[int(torch.argmin(loss[torch.as_tensor(mine)]))])
+            for name in PARAM_FIELDS:
+                with torch.no_grad():
+                    getattr(batch.state, name)[i] = getattr(trial.state, name)[best]
 
     def _align_to_points(self, batch: Batch) -> None:
         """Step 2: ICP of the LiDAR-visible vertices to each person's points (Sec. 3.3)."""
@@ -260,8 +302,9 @@ class Fitter:
                                    problem.vertex_index[..., None].expand(-1, -1, 3))
             d_vp = nearest_sq_distances(visible, problem.points, problem.point_mask).sqrt()
             d_pv = nearest_sq_distances(problem.points, visible, problem.vertex_mask).sqrt()
-            centers = self.model.rotation_center(state.shape, state.transl)
-        as_np = {name: getattr(state, name).cpu().double().numpy() for name in PARAM_FIELDS}
+            args = state.body_args(self.model)
+            centers = self.model.rotation_center(args[0], state.transl)
+        as_np = {name: t.cpu().double().numpy() for name, t in zip(PARAM_FIELDS, args)}
         fits = []
         for i, p in enumerate(batch.people):
             n_v, n_p = int(problem.vertex_mask[i].sum()), int(problem.point_mask[i].sum())
@@ -292,12 +335,13 @@ class Fitter:
 
     def _forward(self, state: FitState):
         with torch.no_grad():
-            return self.model(state.shape, state.pose, state.root_orient, state.transl)
+            return self.model(*state.body_args(self.model))
 
     def _move(self, state: FitState, i: int, T: np.ndarray) -> None:
         """Move person i's body by the rigid transform T (camera frame)."""
         with torch.no_grad():
-            center = self.model.rotation_center(state.shape[i : i + 1], state.transl[i : i + 1])[0]
+            shape = self.model.shape_from_free(state.shape[i : i + 1])
+            center = self.model.rotation_center(shape, state.transl[i : i + 1])[0]
             root, transl, _ = move_body(state.root_orient[i].cpu().double().numpy(),
                                         state.transl[i].cpu().double().numpy(), center.cpu().double().numpy(), T)
             state.root_orient[i] = torch.as_tensor(root, dtype=self.dtype, device=self.device)
@@ -336,11 +380,29 @@ class Fitter:
             vertex_mask=torch.as_tensor(vmask, device=dev),
             occluded_joints=torch.as_tensor(batch.occluded_joints, dtype=self.dtype, device=dev),
             init_pose=batch.state.pose.detach().clone(),
+            init_transl=batch.state.transl.detach().clone(),
             use_lidar=torch.as_tensor(batch.use_lidar, device=dev),
+            pixel_scale=self._pixel_scale(batch),
+            keypoint_depth=None if batch.keypoint_depth is None else torch.as_tensor(
+                batch.keypoint_depth, dtype=self.dtype, device=dev),
         )
+
+    def _pixel_scale(self, batch: Batch) -> torch.Tensor | None:
+        """(B,) reference height / each person's expected height in the image (f · stature / depth), the
+        factor on their pixel residuals; None when the profile works in raw pixels."""
+        reference = self.config.optimizer.pixel_reference_px
+        if reference <= 0:
+            return None
+        with torch.no_grad():
+            shape = self.model.shape_from_free(batch.state.shape)
+            depth = self.model.rotation_center(shape, batch.state.transl)[:, 2].clamp(min=0.3)
+        f = 0.5 * (batch.K[0, 0] + batch.K[1, 1])
+        return reference * depth / (f * self.config.init.body_height)
 
 
 def _refine_profile(cfg: FittingConfig):
     opt = cfg.optimizer
     weights = dataclasses.replace(opt.weights, pose=cfg.init.refine_pose_weight)
-    return dataclasses.replace(opt, lr=cfg.init.refine_lr, weights=weights, early_stop_rel_tol=0.0)
+    # Adam runs every refinement step (its loss creeps down for long); LM stops each person on its own
+    tol = opt.early_stop_rel_tol if opt.optimizer == "lm" else 0.0
+    return dataclasses.replace(opt, lr=cfg.init.refine_lr, weights=weights, early_stop_rel_tol=tol)

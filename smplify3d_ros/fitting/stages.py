@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import torch
 
 from smplify3d_ros.body.base import PARAM_FIELDS, BodyModel, BodyOutput
-from smplify3d_ros.fitting import losses
+from smplify3d_ros.fitting import losses, solver
 from smplify3d_ros.fitting.config import LossWeights, OptimizerProfile
 
 PARAM_NAMES = PARAM_FIELDS  # FitState fields, in BodyModel.forward order
@@ -20,12 +20,25 @@ PARAM_NAMES = PARAM_FIELDS  # FitState fields, in BodyModel.forward order
 
 @dataclass
 class FitState:
-    """Batched body parameters being optimized, (B, ...) each."""
+    """Batched body parameters being optimized, (B, ...) each.
+
+    `shape` holds the model's unconstrained shape coordinates (`BodyModel.shape_from_free`: Anny's
+    phenotype logits), so that no optimizer step can leave the model's shape range.
+    """
 
     shape: torch.Tensor
     pose: torch.Tensor
     root_orient: torch.Tensor
     transl: torch.Tensor
+
+    @classmethod
+    def from_params(cls, model: BodyModel, params) -> FitState:
+        shape, pose, root_orient, transl = model.params_tensors(params)
+        return cls(model.shape_to_free(shape), pose, root_orient, transl)
+
+    def body_args(self, model: BodyModel) -> tuple[torch.Tensor, ...]:
+        """(shape, pose, root_orient, transl) as the model takes them."""
+        return model.shape_from_free(self.shape), self.pose, self.root_orient, self.transl
 
     def clone(self) -> FitState:
         return FitState(*(getattr(self, n).detach().clone() for n in PARAM_NAMES))
@@ -51,6 +64,14 @@ class FitProblem:
     occluded_joints: torch.Tensor  # (B, J) joints driving image-occluded parts (L_θocc)
     init_pose: torch.Tensor  # (B, J, 3) the pose L_θocc holds occluded parts to
     use_lidar: torch.Tensor  # (B,) bool: enough points for the 3D term
+    pixel_scale: torch.Tensor | None = None  # (B,) factor on each person's pixel residuals (None: 1)
+    empty_subset: torch.Tensor | None = None  # (0,) int64: no vertex (one tensor, so model caches hold)
+    keypoint_depth: torch.Tensor | None = None  # (B, 17) camera-z targets of limb keypoints (NaN: none)
+    init_transl: torch.Tensor | None = None  # (B, 3) the translation at the start (image-only depth hold)
+
+    def __post_init__(self) -> None:
+        if self.empty_subset is None:
+            self.empty_subset = self.vertex_subset[:0].clone()
 
 
 @dataclass
@@ -65,6 +86,8 @@ class StageSpec:
     chamfer_weight: float  # λ_3D of this stage (0: no 3D term)
     priors: bool  # pose, bending, shape and occlusion priors
     shape_only_prior: bool = False  # stage 1: only L_β beside L_J
+    hold: bool = True  # with `priors`: L_θocc and the init-pose prior (False: nothing to hold, built-in init)
+    keypoint_depth_weight: float = 0.0  # weight of the limb-depth targets (`FitProblem.keypoint_depth`)
 
 
 @dataclass
@@ -86,7 +109,7 @@ class _Translated:
         self.model = model
         self.transl0 = state.transl.detach().clone()
         with torch.no_grad():
-            self.base = model(state.shape, state.pose, state.root_orient, state.transl, vertex_subset)
+            self.base = model(*state.body_args(model), vertex_subset)
 
     def __call__(self, shape, pose, root_orient, transl, vertex_index=None) -> BodyOutput:
         shift = (transl - self.transl0)[:, None]
@@ -100,17 +123,22 @@ def stage_loss(
     """(B,) total loss of one stage. `body` replaces `model`'s forward (see `_Translated`)."""
     weights: LossWeights = profile.weights
     use_chamfer = stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
-    subset = problem.vertex_subset if use_chamfer else problem.vertex_subset[:0]
-    out = (body or model)(state.shape, state.pose, state.root_orient, state.transl, subset)
+    subset = problem.vertex_subset if use_chamfer else problem.empty_subset
+    shape = model.shape_from_free(state.shape)
+    out = (body or model)(shape, state.pose, state.root_orient, state.transl, subset)
     projected = losses.project(out.keypoints, problem.K)
     loss = losses.reprojection_loss(
-        projected, problem.keypoints, problem.confidence, stage.sigma_px, align=stage.align
+        projected, problem.keypoints, problem.confidence, stage.sigma_px, align=stage.align,
+        scale=problem.pixel_scale,
     )
     if stage.priors or stage.shape_only_prior:
-        loss = loss + _w(weights.shape, profile) * model.shape_prior(state.shape)
+        loss = loss + _w(weights.shape, profile) * model.shape_prior(shape)
     if stage.priors:
         loss = loss + _w(weights.pose, profile) * model.pose_prior(state.pose)
         loss = loss + _w(weights.bend, profile) * model.bending_prior(state.pose)
+        if weights.neutral > 0:
+            loss = loss + _w(weights.neutral, profile) * (model.neutral_residuals(state.pose) ** 2).sum(-1)
+    if stage.priors and stage.hold:
         loss = loss + _w(weights.occlusion, profile) * losses.occlusion_prior(
             state.pose, problem.init_pose, problem.occluded_joints
         )
@@ -118,6 +146,12 @@ def stage_loss(
             loss = loss + _w(weights.init_pose, profile) * losses.occlusion_prior(
                 state.pose, problem.init_pose, 1.0 - problem.occluded_joints
             )
+    if weights.image_depth > 0 and "transl" in stage.params and problem.init_transl is not None:
+        loss = loss + _w(weights.image_depth, profile) * (losses.depth_hold_residuals(
+            state.transl, problem.init_transl, problem.use_lidar) ** 2)
+    if stage.keypoint_depth_weight > 0 and problem.keypoint_depth is not None:
+        loss = loss + _w(stage.keypoint_depth_weight, profile) * losses.keypoint_depth_loss(
+            out.keypoints, problem.keypoint_depth)
     if use_chamfer:
         visible = torch.gather(out.vertices, 1, problem.vertex_index[..., None].expand(-1, -1, 3))
         chamfer = losses.chamfer_loss(visible, problem.vertex_mask, problem.points, problem.point_mask,
@@ -144,6 +178,8 @@ def run_stage(
         with torch.no_grad():
             return 0, stage_loss(model, state, problem, stage, profile)
     body = _Translated(model, state, problem.vertex_subset) if stage.params == ("transl",) else None
+    if profile.optimizer == "lm":
+        return _run_lm(model, state, problem, stage, profile, diverged, body)
     tensors = [getattr(state, n) for n in stage.params]
     for t in tensors:
         t.requires_grad_(True)
@@ -191,6 +227,41 @@ def run_stage(
         state.copy_rows_from(best, worse)
         final = torch.where(worse, best_loss, final)
     return iterations, final
+
+
+def _run_lm(
+    model: BodyModel, state: FitState, problem: FitProblem, stage: StageSpec, profile: OptimizerProfile,
+    diverged: torch.Tensor, body: _Translated | None,
+) -> tuple[int, torch.Tensor]:
+    """`run_stage` with Levenberg-Marquardt steps (`fitting.solver`): a step is kept only where it lowers
+    the person's exact stage loss, so nobody ends worse than they started; a non-finite start freezes
+    the person (flagged diverged). Each person stops once its accepted steps improve its loss by less
+    than `early_stop_rel_tol` `early_stop_patience` times in a row, or once no step with a bearable
+    damping lowers it."""
+    layout = solver.Layout.of(model, stage.params, state.pose.device)
+    with torch.no_grad():
+        cost = stage_loss(model, state, problem, stage, profile, body)
+    diverged |= ~torch.isfinite(cost)
+    active = ~diverged
+    damping = torch.full_like(cost, profile.lm_damping)
+    calm = torch.zeros_like(active, dtype=torch.int64)
+    iterations = 0
+    for _ in range(stage.iterations):
+        if not active.any():
+            break
+        system = solver.normal_equations(model, state, problem, stage, profile, layout, body)
+        candidate = solver.apply_step(state, solver.damped_step(system, layout, damping), layout)
+        with torch.no_grad():
+            new_cost = stage_loss(model, candidate, problem, stage, profile, body)
+        better = active & torch.isfinite(new_cost) & (new_cost < cost)
+        state.copy_rows_from(candidate, better)
+        slow = better & (cost - new_cost < profile.early_stop_rel_tol * cost.abs())
+        cost = torch.where(better, new_cost, cost)
+        damping = torch.where(better, damping / solver.DAMPING_DOWN, damping * solver.DAMPING_UP)
+        calm = torch.where(slow, calm + 1, torch.where(better, torch.zeros_like(calm), calm))
+        active &= (calm < profile.early_stop_patience) & (damping < solver.DAMPING_MAX)
+        iterations += 1
+    return iterations, cost
 
 
 def stage_plan(profile: OptimizerProfile) -> list[StageSpec]:
