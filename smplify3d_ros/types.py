@@ -86,6 +86,10 @@ class FitQuality:
     visible_parts: list[str]  # body parts considered visible to the camera
     icp_converged: bool  # whether the rigid LiDAR alignment converged
     final_loss: float  # the last stage's total loss
+    # mean distance from each of the person's points to the nearest visible vertex, m (nan if none): the
+    # half of `chamfer_m` that a ring-scanning LiDAR does not inflate (vertices between its rings have no
+    # point near them however well the body fits); `FLAG_LIDAR_MISMATCH` is set from it
+    points_to_mesh_m: float = float("nan")
 
 
 # Flags a BodyFit may carry.
@@ -94,6 +98,7 @@ FLAG_DIVERGED = "diverged"  # a stage produced NaN or an exploding loss: best fi
 FLAG_ICP_NOT_CONVERGED = "icp_not_converged"
 FLAG_EXTERNAL_INIT = "external_init"  # initialized from an upstream estimate
 FLAG_FEW_KEYPOINTS = "few_keypoints"  # too few confident keypoints for a reliable image term
+FLAG_LIDAR_MISMATCH = "lidar_mismatch"  # the fit missed its points (points_to_mesh_m above fitting.lidar_mismatch_m)
 
 
 @dataclass

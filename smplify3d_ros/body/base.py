@@ -77,6 +77,9 @@ class BodyModel(torch.nn.Module):
 
     name: str
     joint_names: tuple[str, ...] = BODY_JOINTS
+    # True: `forward` and `linearize` take a (B, n) `vertex_index`, one vertex set per body, and return
+    # those; False: one (n,) set for the whole batch (callers pass the union and pick their rows)
+    vertices_per_row: bool = False
     shape_names: tuple[str, ...]
     faces: torch.Tensor  # (F, 3) int64
     part_of_face: torch.Tensor  # (F,) int64 index into keypoints.PART_NAMES, -1 for faces never used

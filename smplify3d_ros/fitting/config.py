@@ -85,10 +85,12 @@ class InitConfig:
     limb_depth_percentile: float
     limb_surface_offset: float
     refine_iterations: int
+    hypothesis_iterations: int
     refine_lr: float
     refine_pose_weight: float
     refine_chamfer: float
     refine_keypoint_depth: float
+    refine_max_vertices: int
 
     def __post_init__(self) -> None:
         for name in ("body_height", "torso_height", "shoulder_width", "hip_width", "refine_lr", "limb_radius",
@@ -98,6 +100,9 @@ class InitConfig:
                      "refine_chamfer", "refine_keypoint_depth", "hypothesis_merge_deg"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(self.refine_iterations >= 0, "refine_iterations must be >= 0")
+        require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")
+        require(0 <= self.hypothesis_iterations <= self.refine_iterations,
+                "hypothesis_iterations must be in [0, refine_iterations]")
         require(self.heading_hypotheses >= 1, "heading_hypotheses must be >= 1")
         require(self.lidar_heading_min_points >= 2 and self.limb_min_points >= 1,
                 "lidar_heading_min_points must be >= 2 and limb_min_points >= 1")
@@ -142,6 +147,7 @@ class OptimizerProfile:
     chamfer_max_vertices: int
     chamfer_max_points: int
     chamfer_vertex_weight: float
+    mesh_shape: bool
     keypoint_alignment: Literal["hips", "centroid"]
     square_weights: bool
     weights: LossWeights
@@ -178,6 +184,7 @@ class FittingConfig:
     num_threads: int
     seed: int
     divergence_factor: float
+    lidar_mismatch_m: float
 
     def __post_init__(self) -> None:
         require(self.profile in self.profiles, f"profile {self.profile!r} is not one of {sorted(self.profiles)}")
@@ -185,6 +192,7 @@ class FittingConfig:
         require(self.min_points_depth >= 1, "min_points_depth must be >= 1")
         require(self.min_keypoints >= 0, "min_keypoints must be >= 0")
         require(self.divergence_factor > 1, "divergence_factor must be > 1")
+        require(self.lidar_mismatch_m > 0, "lidar_mismatch_m must be > 0")
         require(self.num_threads >= 0, "num_threads must be >= 0 (0 = leave torch's setting)")
 
     @property

@@ -33,6 +33,7 @@ from smplify3d_ros.types import (
     FLAG_FEW_KEYPOINTS,
     FLAG_ICP_NOT_CONVERGED,
     FLAG_IMAGE_ONLY,
+    FLAG_LIDAR_MISMATCH,
     BodyFit,
     BodyParams,
     FitQuality,
@@ -222,32 +223,44 @@ class Fitter:
         return state
 
     def _refine_builtin(self, batch: Batch) -> None:
-        """The built-in estimate: every heading hypothesis of every person refined together (pose,
-        orientation and position against the keypoints, the points and the limb depths, anatomical
-        priors only: there is no estimate to hold), and each person's lowest final loss kept. People
-        with an external estimate keep theirs."""
-        cfg = self.config
-        if not batch.builtin.any() or cfg.init.refine_iterations <= 0:
+        """The built-in estimate: every heading hypothesis of every person refined together for
+        `hypothesis_iterations` (pose, orientation and position against the keypoints, the points and the
+        limb depths, anatomical priors only: there is no estimate to hold), each person's lowest loss
+        kept, then refined alone for the rest of `refine_iterations`. People with an external estimate
+        keep theirs."""
+        init = self.config.init
+        if not batch.builtin.any() or init.refine_iterations <= 0:
             return
         rows = np.array([i for i in range(batch.size) for _ in batch.hypotheses[i]], dtype=np.int64)
         trial = batch.take(rows)
         trial.state = self._placed_state([h for i in range(batch.size) for h in batch.hypotheses[i]],
                                          np.ones(len(rows), dtype=bool))
-        problem = self._problem(trial)
-        params = ("pose", "root_orient", "transl") if cfg.init.refine_chamfer > 0 else ("pose", "root_orient")
-        spec = StageSpec("init", params, cfg.init.refine_iterations, None, cfg.optimizer.weights.sigma_px,
-                         cfg.init.refine_chamfer, priors=True, hold=False,
-                         keypoint_depth_weight=cfg.init.refine_keypoint_depth)
-        diverged = torch.zeros(len(rows), dtype=torch.bool, device=self.device)
-        _, loss = run_stage(self.model, trial.state, problem, spec, _refine_profile(cfg), cfg.divergence_factor,
-                            diverged)
-        loss = torch.where(diverged | ~torch.isfinite(loss), torch.full_like(loss, float("inf")), loss)
+        loss = self._refine(trial, init.hypothesis_iterations)  # 0: the hypotheses compared as they start
         for i in np.flatnonzero(batch.builtin):
             mine = np.flatnonzero(rows == i)
             best = int(mine[int(torch.argmin(loss[torch.as_tensor(mine)]))])
             for name in PARAM_FIELDS:
                 with torch.no_grad():
                     getattr(batch.state, name)[i] = getattr(trial.state, name)[best]
+        rest = init.refine_iterations - init.hypothesis_iterations
+        if rest > 0:
+            chosen = batch.take(np.flatnonzero(batch.builtin))
+            chosen.state = batch.state.take(torch.as_tensor(np.flatnonzero(batch.builtin), device=self.device))
+            self._refine(chosen, rest)
+            batch.state.copy_rows_from_subset(chosen.state, torch.as_tensor(np.flatnonzero(batch.builtin)))
+
+    def _refine(self, trial: Batch, iterations: int) -> torch.Tensor:
+        """`iterations` of the built-in init's refinement of `trial`'s state, in place; (B,) final losses
+        (inf where diverged)."""
+        init = self.config.init
+        problem = self._problem(trial, init.refine_max_vertices)  # coarse: the start is decimetres off
+        params = ("pose", "root_orient", "transl") if init.refine_chamfer > 0 else ("pose", "root_orient")
+        spec = StageSpec("init", params, iterations, None, self.config.optimizer.weights.sigma_px,
+                         init.refine_chamfer, priors=True, hold=False, keypoint_depth_weight=init.refine_keypoint_depth)
+        diverged = torch.zeros(trial.size, dtype=torch.bool, device=self.device)
+        _, loss = run_stage(self.model, trial.state, problem, spec, _refine_profile(self.config),
+                            self.config.divergence_factor, diverged)
+        return torch.where(diverged | ~torch.isfinite(loss), torch.full_like(loss, float("inf")), loss)
 
     def _align_to_points(self, batch: Batch) -> None:
         """Step 2: ICP of the LiDAR-visible vertices to each person's points (Sec. 3.3)."""
@@ -298,8 +311,7 @@ class Fitter:
             err = (project(out.keypoints, batch.K) - batch.keypoints).norm(dim=-1)
             weights = batch.confidence * (batch.confidence >= self.config.init.keypoint_conf)
             reprojection = (err * weights).sum(-1) / weights.sum(-1).clamp(min=1e-9)
-            visible = torch.gather(out.vertices[:, problem.vertex_subset], 1,
-                                   problem.vertex_index[..., None].expand(-1, -1, 3))
+            visible = torch.gather(out.vertices, 1, problem.vertex_ids[..., None].expand(-1, -1, 3))
             d_vp = nearest_sq_distances(visible, problem.points, problem.point_mask).sqrt()
             d_pv = nearest_sq_distances(problem.points, visible, problem.vertex_mask).sqrt()
             args = state.body_args(self.model)
@@ -309,6 +321,9 @@ class Fitter:
         for i, p in enumerate(batch.people):
             n_v, n_p = int(problem.vertex_mask[i].sum()), int(problem.point_mask[i].sum())
             chamfer = 0.5 * float(d_vp[i, :n_v].mean() + d_pv[i, :n_p].mean()) if n_v and n_p else float("nan")
+            to_mesh = float(d_pv[i, :n_p].mean()) if n_v and n_p else float("nan")
+            if batch.use_lidar[i] and to_mesh > self.config.lidar_mismatch_m:
+                batch.flags[i].add(FLAG_LIDAR_MISMATCH)
             fits.append(BodyFit(
                 person_id=p.person_id,
                 params=BodyParams(self.model.name, *(as_np[n][i] for n in PARAM_FIELDS)),
@@ -324,6 +339,7 @@ class Fitter:
                     visible_parts=[name for name, occ in zip(PART_NAMES, batch.occluded_image[i]) if not occ],
                     icp_converged=bool(batch.icp_ok[i]),
                     final_loss=float(batch.final_loss[i]),
+                    points_to_mesh_m=to_mesh,
                 ),
                 flags=batch.flags[i],
             ))
@@ -355,14 +371,16 @@ class Fitter:
         return [visible_vertices(verts[i], self.faces_np, self.part_of_face_np, batch.lidar_origin, threshold,
                                  batch.occluded_lidar[i]) for i in range(batch.size)]
 
-    def _problem(self, batch: Batch) -> FitProblem:
-        """The batched observations of the current bodies: visible vertices (subsampled), points, priors."""
+    def _problem(self, batch: Batch, max_vertices: int | None = None) -> FitProblem:
+        """The batched observations of the current bodies: visible vertices (subsampled to `max_vertices`,
+        default the profile's `chamfer_max_vertices`), points, priors."""
         opt = self.config.optimizer
+        max_vertices = opt.chamfer_max_vertices if max_vertices is None else max_vertices
         masks = self._visible_masks(batch, self._forward(batch.state).vertices.cpu().numpy())
         vertex_rows, point_rows = [], []
         for i, p in enumerate(batch.people):
             index = np.flatnonzero(masks[i])
-            index = index[_subsample(len(index), opt.chamfer_max_vertices, batch.rng)]
+            index = index[_subsample(len(index), max_vertices, batch.rng)]
             points = p.points[_subsample(len(p.points), opt.chamfer_max_points, batch.rng)]
             vertex_rows.append(index if batch.use_lidar[i] else index[:0])
             point_rows.append(points if batch.use_lidar[i] else points[:0])

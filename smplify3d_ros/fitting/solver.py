@@ -22,12 +22,13 @@ started; each person has its own damping and stops on its own.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import roma
 import torch
 
-from smplify3d_ros.body.base import BodyLinearization, BodyModel
+from smplify3d_ros.body.base import BodyModel
 from smplify3d_ros.fitting import losses
 from smplify3d_ros.fitting.config import OptimizerProfile
 
@@ -84,21 +85,21 @@ class Residuals:
 class Linearized:
     """The body at the current state, with derivatives over the whole layout (shape included)."""
 
-    vertices: torch.Tensor  # (B, s, 3) the problem's vertex subset
+    vertices: torch.Tensor  # (B, n, 3) each person's L_3D vertices (`FitProblem.vertex_ids`)
     keypoints: torch.Tensor  # (B, 17, 3)
     d_keypoints: torch.Tensor  # (B, 17, 3, P)
-    lin: BodyLinearization | None
-    d_vertices_shape: torch.Tensor | None  # (B, s, 3, S) or None
+    rows: Callable[[torch.Tensor], torch.Tensor] | None  # (B, r) positions in `vertices` -> (B, r, 3, P63)
+    d_vertices_shape: torch.Tensor | None  # (B, n, 3, S) or None
     translation_only: bool
 
     def vertex_jacobian(self, rows: torch.Tensor, layout: Layout) -> torch.Tensor:
-        """(B, r) rows of `vertices` -> (B, r, 3, P)."""
+        """(B, r) positions in `vertices` -> (B, r, 3, P)."""
         B, r = rows.shape
         if self.translation_only:
             J = self.vertices.new_zeros(B, r, 3, layout.size)
             J[..., 3 * layout.joints + 3 : 3 * layout.joints + 6] = torch.eye(3, dtype=J.dtype, device=J.device)
             return J
-        J = self.lin.vertex_jacobian(rows)
+        J = self.rows(rows)
         if self.d_vertices_shape is None:
             return torch.cat([J, J.new_zeros(B, r, 3, layout.shapes)], -1)
         shape_part = torch.gather(self.d_vertices_shape, 1,
@@ -106,35 +107,52 @@ class Linearized:
         return torch.cat([J, shape_part], -1)
 
 
-def linearize(model: BodyModel, state, subset: torch.Tensor, layout: Layout, translated=None) -> Linearized:
+def linearize(model: BodyModel, state, problem, use_chamfer: bool, layout: Layout,
+              translated=None) -> Linearized:
     """The body and its Jacobians. `translated` (a `stages._Translated`): the stage moves the
     translation only, the posed body is fixed and its Jacobian the identity."""
-    shape, pose, root, transl = state.body_args(model)
-    B = pose.shape[0]
+    args = state.body_args(model)
+    B = args[1].shape[0]
     if translated is not None:
         with torch.no_grad():
-            out = translated(shape, pose, root, transl, subset)
+            out = translated(*args)
         d_kp = out.keypoints.new_zeros(B, 17, 3, layout.size)
         d_kp[..., 3 * layout.joints + 3 : 3 * layout.joints + 6] = torch.eye(3, dtype=d_kp.dtype)
         return Linearized(out.vertices, out.keypoints, d_kp, None, None, True)
     with torch.no_grad():
-        lin = model.linearize(shape, pose, root, transl, subset)
+        if not use_chamfer:
+            lin = model.linearize(*args, problem.empty_subset)
+            vertices, rows = lin.vertices, lin.vertex_jacobian
+        elif model.vertices_per_row:
+            lin = model.linearize(*args, problem.vertex_ids)
+            vertices, rows = lin.vertices, lin.vertex_jacobian
+        else:  # the union, each person's rows picked from it
+            lin = model.linearize(*args, problem.vertex_subset)
+            index = problem.vertex_index
+            vertices = torch.gather(lin.vertices, 1, index[..., None].expand(-1, -1, 3))
+
+            def rows(r: torch.Tensor, lin=lin, index=index) -> torch.Tensor:
+                return lin.vertex_jacobian(torch.gather(index, 1, r))
         d_kp = torch.cat([lin.d_keypoints, lin.d_keypoints.new_zeros(B, 17, 3, layout.shapes)], -1)
         d_verts_shape = None
         if layout.shape_active:
-            d_verts_shape, d_kp_shape = _shape_jacobian(model, state, subset, lin)
+            d_verts_shape, d_kp_shape = _shape_jacobian(model, state, problem, use_chamfer, vertices, lin.keypoints)
             d_kp[..., 3 * layout.joints + 6 :] = d_kp_shape
-    return Linearized(lin.vertices, lin.keypoints, d_kp, lin, d_verts_shape, False)
+    return Linearized(vertices, lin.keypoints, d_kp, rows, d_verts_shape, False)
 
 
-def _shape_jacobian(model: BodyModel, state, subset: torch.Tensor, lin: BodyLinearization):
+def _shape_jacobian(model: BodyModel, state, problem, use_chamfer: bool, vertices: torch.Tensor,
+                    keypoints: torch.Tensor):
     """Forward differences in the unconstrained shape coordinates, all of them in one batched pass."""
+    from smplify3d_ros.fitting.stages import posed_rows
+
     B, S = state.shape.shape
     free = state.shape[:, None, :] + SHAPE_STEP * torch.eye(S, dtype=state.shape.dtype, device=state.shape.device)
     rep = [t.repeat_interleave(S, 0) for t in (state.pose, state.root_orient, state.transl)]
-    out = model(model.shape_from_free(free.reshape(B * S, S)), *rep, subset)
-    d_verts = (out.vertices.reshape(B, S, -1, 3) - lin.vertices[:, None]) / SHAPE_STEP
-    d_kp = (out.keypoints.reshape(B, S, -1, 3) - lin.keypoints[:, None]) / SHAPE_STEP
+    repeated = problem.take(torch.arange(B, device=free.device).repeat_interleave(S))
+    out = posed_rows(model, (model.shape_from_free(free.reshape(B * S, S)), *rep), repeated, use_chamfer)
+    d_verts = (out.vertices.reshape(B, S, -1, 3) - vertices[:, None]) / SHAPE_STEP
+    d_kp = (out.keypoints.reshape(B, S, -1, 3) - keypoints[:, None]) / SHAPE_STEP
     return d_verts.permute(0, 2, 3, 1), d_kp.permute(0, 2, 3, 1)
 
 
@@ -183,22 +201,22 @@ def chamfer_block(body: Linearized, problem, stage, profile: OptimizerProfile, l
     if stage.chamfer_weight <= 0 or problem.vertex_index.shape[1] == 0:
         return
     weight = _w(stage.chamfer_weight, profile) * problem.use_lidar.to(body.vertices.dtype)  # (B,)
-    vidx, vmask, points, pmask = problem.vertex_index, problem.vertex_mask, problem.points, problem.point_mask
-    visible = torch.gather(body.vertices, 1, vidx[..., None].expand(-1, -1, 3))
+    vmask, points, pmask = problem.vertex_mask, problem.points, problem.point_mask
+    visible = body.vertices
     has = (vmask.any(-1) & pmask.any(-1)).to(weight.dtype)
     want_back = profile.chamfer_vertex_weight > 0
     p_index, v_index = losses.nearest_indices(points, visible, vmask, pmask if want_back else None)
     m = pmask.sum(-1).clamp(min=1).to(weight.dtype)
-    rows = torch.gather(vidx, 1, p_index)  # (B, m) rows of the subset
     scale = ((weight * has / m).sqrt()[:, None] * pmask)[..., None]  # (B, m, 1)
-    r = scale * (torch.gather(body.vertices, 1, rows[..., None].expand(-1, -1, 3)) - points)
-    J = scale[..., None] * body.vertex_jacobian(rows, layout)
+    r = scale * (torch.gather(visible, 1, p_index[..., None].expand(-1, -1, 3)) - points)
+    J = scale[..., None] * body.vertex_jacobian(p_index, layout)
     acc.add(r.flatten(1), J.flatten(1, 2))
     if want_back:
         n = vmask.sum(-1).clamp(min=1).to(weight.dtype)
         scale = ((weight * has * profile.chamfer_vertex_weight / n).sqrt()[:, None] * vmask)[..., None]
         r = scale * (visible - torch.gather(points, 1, v_index[..., None].expand(-1, -1, 3)))
-        J = scale[..., None] * body.vertex_jacobian(vidx, layout)
+        all_rows = torch.arange(visible.shape[1], device=visible.device).expand(visible.shape[0], -1)
+        J = scale[..., None] * body.vertex_jacobian(all_rows, layout)
         acc.add(r.flatten(1), J.flatten(1, 2))
 
 
@@ -334,8 +352,7 @@ def _w(weight: float, profile: OptimizerProfile) -> float:
 def normal_equations(model: BodyModel, state, problem, stage, profile: OptimizerProfile, layout: Layout,
                      translated=None) -> Residuals:
     use_chamfer = stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
-    subset = problem.vertex_subset if use_chamfer else problem.empty_subset
-    body = linearize(model, state, subset, layout, translated)
+    body = linearize(model, state, problem, use_chamfer, layout, translated)
     acc = Residuals(state.pose.shape[0], layout.size, state.pose.device)
     keypoint_block(body, problem, stage, acc)
     if use_chamfer:

@@ -7,6 +7,7 @@ flagged, without stopping the others.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import torch
@@ -43,6 +44,16 @@ class FitState:
     def clone(self) -> FitState:
         return FitState(*(getattr(self, n).detach().clone() for n in PARAM_NAMES))
 
+    def take(self, rows: torch.Tensor) -> FitState:
+        """A copy of the people `rows` (int64 positions)."""
+        return FitState(*(getattr(self, n).detach()[rows].clone() for n in PARAM_NAMES))
+
+    def copy_rows_from_subset(self, other: FitState, rows: torch.Tensor) -> None:
+        """Rows `rows` of this state from `other`'s rows 0..len(rows)-1 (the inverse of `take`)."""
+        with torch.no_grad():
+            for n in PARAM_NAMES:
+                getattr(self, n)[rows] = getattr(other, n)
+
     def copy_rows_from(self, other: FitState, rows: torch.Tensor) -> None:
         with torch.no_grad():
             for n in PARAM_NAMES:
@@ -67,11 +78,38 @@ class FitProblem:
     pixel_scale: torch.Tensor | None = None  # (B,) factor on each person's pixel residuals (None: 1)
     empty_subset: torch.Tensor | None = None  # (0,) int64: no vertex (one tensor, so model caches hold)
     keypoint_depth: torch.Tensor | None = None  # (B, 17) camera-z targets of limb keypoints (NaN: none)
+    vertex_ids: torch.Tensor | None = None  # (B, n) each person's L_3D vertices as model vertex ids
     init_transl: torch.Tensor | None = None  # (B, 3) the translation at the start (image-only depth hold)
 
     def __post_init__(self) -> None:
         if self.empty_subset is None:
             self.empty_subset = self.vertex_subset[:0].clone()
+        if self.vertex_ids is None:
+            self.vertex_ids = self.vertex_subset[self.vertex_index] if len(self.vertex_subset) else self.vertex_index
+
+
+    def take(self, rows: torch.Tensor) -> FitProblem:
+        """The problem of the people `rows` (repeats allowed): the shape Jacobian's perturbed copies."""
+        shared = ("K", "vertex_subset", "empty_subset")
+        picked = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        for name, value in picked.items():
+            if name not in shared and value is not None:
+                picked[name] = value[rows]
+        return FitProblem(**picked)
+
+
+def posed_rows(model: BodyModel, args: tuple[torch.Tensor, ...], problem: FitProblem, with_vertices: bool
+               ) -> BodyOutput:
+    """The bodies of `args` with, as `vertices`, each person's own L_3D vertices (B, n, 3) (none without
+    `with_vertices`): a model that poses a vertex set per body does so directly, another poses the
+    batch's union and each person picks theirs."""
+    if not with_vertices:
+        return model(*args, problem.empty_subset)
+    if model.vertices_per_row:
+        return model(*args, problem.vertex_ids)
+    out = model(*args, problem.vertex_subset)
+    rows = torch.gather(out.vertices, 1, problem.vertex_index[..., None].expand(-1, -1, 3))
+    return BodyOutput(rows, out.joints, out.keypoints)
 
 
 @dataclass
@@ -105,13 +143,13 @@ class _Translated:
     """Stand-in for the body model in a translation-only stage: every model is translation-equivariant
     (`transl` is added last), so the posed body is computed once and only shifted afterwards."""
 
-    def __init__(self, model: BodyModel, state: FitState, vertex_subset: torch.Tensor) -> None:
+    def __init__(self, model: BodyModel, state: FitState, problem: FitProblem) -> None:
         self.model = model
         self.transl0 = state.transl.detach().clone()
         with torch.no_grad():
-            self.base = model(*state.body_args(model), vertex_subset)
+            self.base = posed_rows(model, state.body_args(model), problem, problem.vertex_index.shape[1] > 0)
 
-    def __call__(self, shape, pose, root_orient, transl, vertex_index=None) -> BodyOutput:
+    def __call__(self, shape, pose, root_orient, transl) -> BodyOutput:
         shift = (transl - self.transl0)[:, None]
         return BodyOutput(self.base.vertices + shift, self.base.joints + shift, self.base.keypoints + shift)
 
@@ -123,9 +161,9 @@ def stage_loss(
     """(B,) total loss of one stage. `body` replaces `model`'s forward (see `_Translated`)."""
     weights: LossWeights = profile.weights
     use_chamfer = stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
-    subset = problem.vertex_subset if use_chamfer else problem.empty_subset
     shape = model.shape_from_free(state.shape)
-    out = (body or model)(shape, state.pose, state.root_orient, state.transl, subset)
+    args = (shape, state.pose, state.root_orient, state.transl)
+    out = body(*args) if body is not None else posed_rows(model, args, problem, use_chamfer)
     projected = losses.project(out.keypoints, problem.K)
     loss = losses.reprojection_loss(
         projected, problem.keypoints, problem.confidence, stage.sigma_px, align=stage.align,
@@ -153,8 +191,7 @@ def stage_loss(
         loss = loss + _w(stage.keypoint_depth_weight, profile) * losses.keypoint_depth_loss(
             out.keypoints, problem.keypoint_depth)
     if use_chamfer:
-        visible = torch.gather(out.vertices, 1, problem.vertex_index[..., None].expand(-1, -1, 3))
-        chamfer = losses.chamfer_loss(visible, problem.vertex_mask, problem.points, problem.point_mask,
+        chamfer = losses.chamfer_loss(out.vertices, problem.vertex_mask, problem.points, problem.point_mask,
                                       profile.chamfer_vertex_weight)
         loss = loss + _w(stage.chamfer_weight, profile) * chamfer * problem.use_lidar
     return loss
@@ -177,7 +214,7 @@ def run_stage(
     if stage.iterations == 0:
         with torch.no_grad():
             return 0, stage_loss(model, state, problem, stage, profile)
-    body = _Translated(model, state, problem.vertex_subset) if stage.params == ("transl",) else None
+    body = _Translated(model, state, problem) if stage.params == ("transl",) else None
     if profile.optimizer == "lm":
         return _run_lm(model, state, problem, stage, profile, diverged, body)
     tensors = [getattr(state, n) for n in stage.params]
@@ -235,16 +272,15 @@ def _run_lm(
 ) -> tuple[int, torch.Tensor]:
     """`run_stage` with Levenberg-Marquardt steps (`fitting.solver`): a step is kept only where it lowers
     the person's exact stage loss, so nobody ends worse than they started; a non-finite start freezes
-    the person (flagged diverged). Each person stops once its accepted steps improve its loss by less
-    than `early_stop_rel_tol` `early_stop_patience` times in a row, or once no step with a bearable
-    damping lowers it."""
+    the person (flagged diverged). Each person stops once its loss fell by less than `early_stop_rel_tol`
+    over the last `early_stop_patience` iterations, or once no step with a bearable damping lowers it."""
     layout = solver.Layout.of(model, stage.params, state.pose.device)
     with torch.no_grad():
         cost = stage_loss(model, state, problem, stage, profile, body)
     diverged |= ~torch.isfinite(cost)
-    active = ~diverged
+    active = ~diverged.clone()
     damping = torch.full_like(cost, profile.lm_damping)
-    calm = torch.zeros_like(active, dtype=torch.int64)
+    history = [cost]  # each iteration's loss, accepted steps or not
     iterations = 0
     for _ in range(stage.iterations):
         if not active.any():
@@ -255,12 +291,14 @@ def _run_lm(
             new_cost = stage_loss(model, candidate, problem, stage, profile, body)
         better = active & torch.isfinite(new_cost) & (new_cost < cost)
         state.copy_rows_from(candidate, better)
-        slow = better & (cost - new_cost < profile.early_stop_rel_tol * cost.abs())
         cost = torch.where(better, new_cost, cost)
         damping = torch.where(better, damping / solver.DAMPING_DOWN, damping * solver.DAMPING_UP)
-        calm = torch.where(slow, calm + 1, torch.where(better, torch.zeros_like(calm), calm))
-        active &= (calm < profile.early_stop_patience) & (damping < solver.DAMPING_MAX)
+        history.append(cost)
         iterations += 1
+        if len(history) > profile.early_stop_patience:
+            before = history[-1 - profile.early_stop_patience]
+            active &= before - cost >= profile.early_stop_rel_tol * before.abs()
+        active &= damping < solver.DAMPING_MAX
     return iterations, cost
 
 
@@ -276,7 +314,8 @@ def stage_plan(profile: OptimizerProfile) -> list[StageSpec]:
     align = profile.keypoint_alignment
     return [
         StageSpec("scale", ("shape",), n1, align, w.sigma_px, 0.0, priors=False, shape_only_prior=True),
-        StageSpec("mesh", ("pose", "shape", "root_orient"), n2, align, w.sigma_px, w.chamfer, priors=True),
+        StageSpec("mesh", ("pose", "shape", "root_orient") if profile.mesh_shape else ("pose", "root_orient"), n2,
+                  align, w.sigma_px, w.chamfer, priors=True),
         StageSpec("image", ("transl",), n3, None, w.sigma_px_final, w.chamfer_final, priors=False),
     ]
 
