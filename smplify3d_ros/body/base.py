@@ -168,7 +168,7 @@ class BodyModel(torch.nn.Module):
             values = flat(x)
         jac = torch.func.jacfwd(flat)(x)  # (B, n + 17, 3, B, P): rows of other people are zero
         jac = jac[torch.arange(B), :, :, torch.arange(B)]  # (B, n + 17, 3, P)
-        n = len(vertex_index)
+        n = vertex_index.shape[-1]  # (n,) or, for a per-row model, (B, n)
         d_vertices = jac[:, :n]
 
         def rows(index: torch.Tensor) -> torch.Tensor:
