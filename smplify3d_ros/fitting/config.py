@@ -120,6 +120,7 @@ class LossWeights:
     shape: float  # λ_β
     chamfer: float  # λ_3D in stage 2 (and single-stage)
     chamfer_final: float  # λ_3D in stage 3
+    chamfer_scale: float  # λ_3D in stage 1, which then moves the translation too (0: Eq. 12, shape only)
     occlusion: float  # λ_θocc
     init_pose: float  # the same prior on the joints of *visible* parts (0 in the thesis)
     neutral: float  # Gaussian pose prior around the anatomical neutral, per range of motion (0 in the thesis)
@@ -128,8 +129,8 @@ class LossWeights:
     sigma_px_final: float  # Geman-McClure σ, stage 3
 
     def __post_init__(self) -> None:
-        for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "occlusion", "init_pose", "neutral",
-                     "image_depth"):
+        for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "chamfer_scale", "occlusion",
+                     "init_pose", "neutral", "image_depth"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(self.sigma_px > 0 and self.sigma_px_final > 0, "sigma_px values must be > 0")
 

@@ -313,7 +313,10 @@ def stage_plan(profile: OptimizerProfile) -> list[StageSpec]:
     n1, n2, n3 = profile.iterations
     align = profile.keypoint_alignment
     return [
-        StageSpec("scale", ("shape",), n1, align, w.sigma_px, 0.0, priors=False, shape_only_prior=True),
+        # with L_3D, stage 1 moves the body to its points while it scales it: the size the image sees is
+        # then measured at the depth the LiDAR sees, rather than at a depth the later stages must undo
+        StageSpec("scale", ("shape", "transl") if w.chamfer_scale > 0 else ("shape",), n1, align, w.sigma_px,
+                  w.chamfer_scale, priors=False, shape_only_prior=True),
         StageSpec("mesh", ("pose", "shape", "root_orient") if profile.mesh_shape else ("pose", "root_orient"), n2,
                   align, w.sigma_px, w.chamfer, priors=True),
         StageSpec("image", ("transl",), n3, None, w.sigma_px_final, w.chamfer_final, priors=False),
