@@ -84,6 +84,7 @@ class InitConfig:
     limb_min_points: int
     limb_depth_percentile: float
     limb_surface_offset: float
+    limb_depth_sigma: float
     refine_iterations: int
     hypothesis_iterations: int
     refine_lr: float
@@ -94,10 +95,10 @@ class InitConfig:
 
     def __post_init__(self) -> None:
         for name in ("body_height", "torso_height", "shoulder_width", "hip_width", "refine_lr", "limb_radius",
-                     "limb_depth_band", "torso_depth_band", "lidar_heading_min_spread"):
+                     "limb_depth_band", "limb_depth_sigma", "torso_depth_band", "lidar_heading_min_spread"):
             require(getattr(self, name) > 0, f"{name} must be > 0")
-        for name in ("lidar_surface_offset", "ankle_height", "torso_box_pad", "limb_surface_offset",
-                     "refine_chamfer", "refine_keypoint_depth", "hypothesis_merge_deg"):
+        for name in ("lidar_surface_offset", "ankle_height", "torso_box_pad",
+                     "limb_surface_offset", "refine_chamfer", "refine_keypoint_depth", "hypothesis_merge_deg"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(self.refine_iterations >= 0, "refine_iterations must be >= 0")
         require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")
@@ -124,13 +125,14 @@ class LossWeights:
     occlusion: float  # λ_θocc
     init_pose: float  # the same prior on the joints of *visible* parts (0 in the thesis)
     neutral: float  # Gaussian pose prior around the anatomical neutral, per range of motion (0 in the thesis)
+    upright: float  # prior on the body's tilt from the world's up (sine of the tilt), 0: none
     image_depth: float  # holds the initial depth of people fitted without L_3D (relative error), 0: free
     sigma_px: float  # Geman-McClure σ, stages 1-2 (and single-stage)
     sigma_px_final: float  # Geman-McClure σ, stage 3
 
     def __post_init__(self) -> None:
         for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "chamfer_scale", "occlusion",
-                     "init_pose", "neutral", "image_depth"):
+                     "init_pose", "neutral", "upright", "image_depth"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(self.sigma_px > 0 and self.sigma_px_final > 0, "sigma_px values must be > 0")
 

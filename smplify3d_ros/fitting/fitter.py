@@ -1,9 +1,12 @@
 """The method on one frame's people: initial estimate -> visibility -> ICP -> stages -> BodyFit.
 
 `Fitter.fit(people, K)` runs the thesis's steps in order, batched over the people of a frame; each step
-is a method over one `Batch`, the state the steps share. The people come as `PersonObservation`s in the
-camera frame (keypoints undistorted, LiDAR points cut out): `frame_fitter.FrameFitter` makes them from a
-whole `Frame`.
+is a method over one `Batch`, the state the steps share. From the built-in initializer (no upstream HMR,
+the robot's usual case) each person starts as several heading hypotheses (`fitting.heading`), refined
+together and reduced to the one the objective prefers before the ICP. The stages run Adam or
+Levenberg-Marquardt (`fitting.solver`) on the same objective, as the profile says. The people come as
+`PersonObservation`s in the camera frame (keypoints undistorted, LiDAR points cut out):
+`frame_fitter.FrameFitter` makes them from a whole `Frame`.
 """
 
 from __future__ import annotations
@@ -200,7 +203,9 @@ class Fitter:
             if p.init is not None:
                 log.warning("person %d: initial estimate is for %r, not %r; using the built-in init",
                             p.person_id, p.init.model, self.model.name)
-            for root, pelvis in initializer.builtin_hypotheses(p, K, cfg.init, bool(batch.use_lidar[i])):
+            hypotheses = initializer.builtin_hypotheses(p, K, cfg.init, bool(batch.use_lidar[i]),
+                                                        len(p.points) >= cfg.min_points_depth)
+            for root, pelvis in hypotheses:
                 batch.hypotheses[i].append(BodyParams(self.model.name, mean_shape.copy(),
                                                       self._neutral_pose.copy(), root, pelvis))
             params.append(batch.hypotheses[i][0])
@@ -256,7 +261,8 @@ class Fitter:
         problem = self._problem(trial, init.refine_max_vertices)  # coarse: the start is decimetres off
         params = ("pose", "root_orient", "transl") if init.refine_chamfer > 0 else ("pose", "root_orient")
         spec = StageSpec("init", params, iterations, None, self.config.optimizer.weights.sigma_px,
-                         init.refine_chamfer, priors=True, hold=False, keypoint_depth_weight=init.refine_keypoint_depth)
+                         init.refine_chamfer, priors=True, hold=False, keypoint_depth_weight=init.refine_keypoint_depth,
+                         keypoint_depth_sigma=init.limb_depth_sigma)
         diverged = torch.zeros(trial.size, dtype=torch.bool, device=self.device)
         _, loss = run_stage(self.model, trial.state, problem, spec, _refine_profile(self.config),
                             self.config.divergence_factor, diverged)
@@ -401,6 +407,8 @@ class Fitter:
             init_transl=batch.state.transl.detach().clone(),
             use_lidar=torch.as_tensor(batch.use_lidar, device=dev),
             pixel_scale=self._pixel_scale(batch),
+            up=torch.as_tensor(np.stack([p.ground[:3] if p.ground is not None else (0.0, -1.0, 0.0)
+                                         for p in batch.people]), dtype=self.dtype, device=dev),
             keypoint_depth=None if batch.keypoint_depth is None else torch.as_tensor(
                 batch.keypoint_depth, dtype=self.dtype, device=dev),
         )

@@ -48,7 +48,8 @@ def ground_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> floa
     if obs.ground is None:
         return None
     normal, offset = np.asarray(obs.ground[:3], np.float64), float(obs.ground[3])
-    ankles = [KP[n] for n in ("left_ankle", "right_ankle") if obs.keypoints[KP[n], 2] >= cfg.keypoint_conf]
+    # a guessed ankle is no use: at 10 m a low camera sees the ground so obliquely that a pixel is 0.5 m
+    ankles = [KP[n] for n in ("left_ankle", "right_ankle") if obs.keypoints[KP[n], 2] >= cfg.limb_keypoint_conf]
     if not ankles:
         return None
     lower = max(ankles, key=lambda k: obs.keypoints[k, 1])  # the foot on the ground is the lower one
@@ -61,7 +62,11 @@ def ground_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> floa
 
 
 def estimate_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, use_points: bool) -> float:
-    """Depth (m, camera z) of the pelvis."""
+    """Depth (m, camera z) of the pelvis (module docstring). With points, they decide: even a handful
+    (`fitting.min_points_depth`) measured the depth within centimetres for 9 of 11 barely seen people
+    in our scenes, where ground contact was off by up to 1.8 m (from a camera 0.4 m above the floor the
+    ground is seen so obliquely that a pixel of ankle error is 5 % of the depth) and the torso's pixel
+    height by up to 8 m (a partly hidden torso)."""
     if use_points and len(obs.points):
         chest = torso_points(obs.keypoints, K, obs.points, cfg)
         points = chest if len(chest) >= cfg.lidar_heading_min_points else obs.points
@@ -108,11 +113,12 @@ def _frame(up: np.ndarray, forward: np.ndarray) -> np.ndarray:
     return np.stack([left, up, forward], axis=1)
 
 
-def builtin_hypotheses(obs: PersonObservation, K: np.ndarray, cfg: InitConfig,
-                       use_points: bool) -> list[tuple[np.ndarray, np.ndarray]]:
+def builtin_hypotheses(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, use_points: bool,
+                       depth_points: bool) -> list[tuple[np.ndarray, np.ndarray]]:
     """(root_orient (3,), pelvis position (3,)) of each heading hypothesis of the built-in initializer,
-    before the limb refinement; the best guess first."""
-    depth = estimate_depth(obs, K, cfg, use_points)
+    before the limb refinement; the best guess first. `use_points`: the points inform the heading;
+    `depth_points`: they give the depth (fewer suffice for that, `fitting.min_points_depth`)."""
+    depth = estimate_depth(obs, K, cfg, use_points or depth_points)
     u, v = pelvis_pixel(obs, cfg)
     pelvis = np.array([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth, depth])
     heading = estimate_heading(obs.keypoints, K, pelvis, obs.points if use_points else obs.points[:0], cfg)

@@ -144,12 +144,13 @@ def occlusion_prior(pose: torch.Tensor, init_pose: torch.Tensor, joint_mask: tor
     return ((1.0 - (q * q0).sum(-1) ** 2) * joint_mask).sum(-1)
 
 
-def keypoint_depth_loss(keypoints: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Σ_k (z_k − target_k)² over the keypoints with a target (non-NaN), m²: the limb depths the LiDAR
-    measured (`fitting.limbs`). keypoints (B, 17, 3) camera frame, target (B, 17)."""
+def keypoint_depth_loss(keypoints: torch.Tensor, target: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Σ_k ρ(z_k − target_k) over the keypoints with a target (non-NaN), Geman-McClure with scale σ (m):
+    the limb depths the LiDAR measured (`fitting.limbs`), robust to the one in six that is another
+    limb's or the torso's. keypoints (B, 17, 3) camera frame, target (B, 17)."""
     valid = torch.isfinite(target)
     diff = torch.where(valid, keypoints[..., 2] - torch.nan_to_num(target), torch.zeros_like(target))
-    return (diff**2).sum(-1)
+    return geman_mcclure(diff, sigma).sum(-1)
 
 
 def depth_hold_residuals(transl: torch.Tensor, init_transl: torch.Tensor, use_lidar: torch.Tensor) -> torch.Tensor:
@@ -158,3 +159,11 @@ def depth_hold_residuals(transl: torch.Tensor, init_transl: torch.Tensor, use_li
     free depth drifts along that ridge."""
     z0 = init_transl[:, 2].clamp(min=0.3)
     return torch.where(use_lidar, torch.zeros_like(z0), (transl[:, 2] - init_transl[:, 2]) / z0)
+
+
+def upright_residuals(root_orient: torch.Tensor, up: torch.Tensor) -> torch.Tensor:
+    """(B, 3) the body's up axis (canonical y, turned by `root_orient`) crossed with the world's up (B, 3),
+    camera frame: its norm is the sine of the body's tilt from upright. People mostly stand, sit or walk
+    upright; without LiDAR a 2D fit can lay a body towards the camera and project nearly alike."""
+    body_up = roma.rotvec_to_rotmat(root_orient)[..., :, 1]
+    return torch.cross(body_up, up, dim=-1)

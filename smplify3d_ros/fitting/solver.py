@@ -234,6 +234,11 @@ def prior_block(model: BodyModel, state, problem, stage, profile: OptimizerProfi
     acc.add(_w(w.shape, profile) ** 0.5 * r, _w(w.shape, profile) ** 0.5 * J)
     if not stage.priors:
         return
+    if w.upright > 0 and problem.up is not None:
+        r, d_root = upright_linearized(state.root_orient, problem.up)
+        J = r.new_zeros(B, 3, layout.size)
+        J[..., J3 : J3 + 3] = d_root
+        acc.add(_w(w.upright, profile) ** 0.5 * r, _w(w.upright, profile) ** 0.5 * J)
     pose = state.pose
     terms = [(w.pose, *range_prior_linearized(model, pose)), (w.bend, *bending_linearized(model, pose))]
     if w.neutral > 0:
@@ -256,13 +261,15 @@ def _add_pose_terms(terms, B: int, layout: Layout, profile: OptimizerProfile, ac
 
 
 def keypoint_depth_block(body: Linearized, problem, stage, profile: OptimizerProfile, acc: Residuals) -> None:
-    """The limb-depth targets' residuals √w (z_k − target_k) (`losses.keypoint_depth_loss`)."""
+    """The limb-depth targets' IRLS residuals √w · √(GM weight) · (z_k − target_k)
+    (`losses.keypoint_depth_loss`, as for the keypoints)."""
     if stage.keypoint_depth_weight <= 0 or problem.keypoint_depth is None:
         return
     valid = torch.isfinite(problem.keypoint_depth).to(body.keypoints.dtype)
-    scale = _w(stage.keypoint_depth_weight, profile) ** 0.5 * valid
-    r = scale * (body.keypoints[..., 2] - torch.nan_to_num(problem.keypoint_depth))
-    acc.add(r, scale[..., None] * body.d_keypoints[..., 2, :])
+    e = valid * (body.keypoints[..., 2] - torch.nan_to_num(problem.keypoint_depth))
+    sigma2 = stage.keypoint_depth_sigma**2
+    scale = _w(stage.keypoint_depth_weight, profile) ** 0.5 * valid * sigma2 / (sigma2 + e**2)
+    acc.add(scale * e, scale[..., None] * body.d_keypoints[..., 2, :])
 
 
 def shape_prior_linearized(model: BodyModel, free: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -288,6 +295,18 @@ def range_prior_linearized(model: BodyModel, pose: torch.Tensor) -> tuple[torch.
     r = (torch.relu(lo - anat) + torch.relu(anat - hi)).flatten(1)
     sign = ((anat > hi).to(pose.dtype) - (anat < lo).to(pose.dtype))  # (B, J, 3)
     return r, _block_diagonal(sign[..., None] * frames)
+
+
+def upright_linearized(root_orient: torch.Tensor, up: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """`losses.upright_residuals` (B, 3) and their Jacobian in the root's axis-angle (B, 3, 3): the body's
+    up axis a turns by ω × a, ω = J_l(root) dr."""
+    from smplify3d_ros.body.base import left_jacobian_so3
+
+    a = roma.rotvec_to_rotmat(root_orient)[..., :, 1]  # (B, 3)
+    omega = left_jacobian_so3(root_orient).transpose(-1, -2)  # (B, 3 columns, 3)
+    da = torch.cross(omega, a[:, None].expand_as(omega), dim=-1)
+    d = torch.cross(da, up[:, None].expand_as(da), dim=-1)  # (B, 3 columns, 3 residuals)
+    return torch.cross(a, up, dim=-1), d.transpose(-1, -2)
 
 
 def neutral_linearized(model: BodyModel, pose: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

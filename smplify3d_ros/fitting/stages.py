@@ -79,6 +79,7 @@ class FitProblem:
     empty_subset: torch.Tensor | None = None  # (0,) int64: no vertex (one tensor, so model caches hold)
     keypoint_depth: torch.Tensor | None = None  # (B, 17) camera-z targets of limb keypoints (NaN: none)
     vertex_ids: torch.Tensor | None = None  # (B, n) each person's L_3D vertices as model vertex ids
+    up: torch.Tensor | None = None  # (B, 3) the world's up in the camera frame (ground normal, else −y)
     init_transl: torch.Tensor | None = None  # (B, 3) the translation at the start (image-only depth hold)
 
     def __post_init__(self) -> None:
@@ -126,6 +127,7 @@ class StageSpec:
     shape_only_prior: bool = False  # stage 1: only L_β beside L_J
     hold: bool = True  # with `priors`: L_θocc and the init-pose prior (False: nothing to hold, built-in init)
     keypoint_depth_weight: float = 0.0  # weight of the limb-depth targets (`FitProblem.keypoint_depth`)
+    keypoint_depth_sigma: float = 0.1  # m, their Geman-McClure scale
 
 
 @dataclass
@@ -176,6 +178,9 @@ def stage_loss(
         loss = loss + _w(weights.bend, profile) * model.bending_prior(state.pose)
         if weights.neutral > 0:
             loss = loss + _w(weights.neutral, profile) * (model.neutral_residuals(state.pose) ** 2).sum(-1)
+        if weights.upright > 0 and problem.up is not None:
+            loss = loss + _w(weights.upright, profile) * (losses.upright_residuals(
+                state.root_orient, problem.up) ** 2).sum(-1)
     if stage.priors and stage.hold:
         loss = loss + _w(weights.occlusion, profile) * losses.occlusion_prior(
             state.pose, problem.init_pose, problem.occluded_joints
@@ -189,7 +194,7 @@ def stage_loss(
             state.transl, problem.init_transl, problem.use_lidar) ** 2)
     if stage.keypoint_depth_weight > 0 and problem.keypoint_depth is not None:
         loss = loss + _w(stage.keypoint_depth_weight, profile) * losses.keypoint_depth_loss(
-            out.keypoints, problem.keypoint_depth)
+            out.keypoints, problem.keypoint_depth, stage.keypoint_depth_sigma)
     if use_chamfer:
         chamfer = losses.chamfer_loss(out.vertices, problem.vertex_mask, problem.points, problem.point_mask,
                                       profile.chamfer_vertex_weight)
