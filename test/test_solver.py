@@ -69,12 +69,17 @@ def test_prior_jacobians_match_autodiff(anny_model):
         "neutral": lambda p: solver.neutral_linearized(model, p),
         "held": lambda p: solver.held_linearized(p, init, mask),
     }
+    up = torch.tensor([[0.05, -1.0, 0.1], [0.0, -1.0, 0.0]], dtype=torch.float64)
+    up = up / up.norm(dim=-1, keepdim=True)
+    cases["upright"] = lambda p: solver.upright_linearized(p[:, 0], up)  # the first row stands in for a root
     B = pose.shape[0]
     for name, fn in cases.items():
         r, J = fn(pose)
         auto = torch.autograd.functional.jacobian(lambda x, fn=fn: fn(x.reshape(pose.shape))[0],
                                                   pose.reshape(B, -1))
         auto = auto[torch.arange(B), :, torch.arange(B)]
+        if name == "upright":
+            auto = auto[..., :3]
         assert torch.allclose(J.double(), auto, atol=1e-6), name
     # the residuals' squares are the priors the Adam path uses
     assert torch.allclose((solver.range_prior_linearized(model, pose)[0] ** 2).sum(-1), model.pose_prior(pose))
