@@ -89,7 +89,7 @@ class Linearized:
     keypoints: torch.Tensor  # (B, 17, 3)
     d_keypoints: torch.Tensor  # (B, 17, 3, P)
     rows: Callable[[torch.Tensor], torch.Tensor] | None  # (B, r) positions in `vertices` -> (B, r, 3, P63)
-    d_vertices_shape: torch.Tensor | None  # (B, n, 3, S) or None
+    shape_rows: Callable[[torch.Tensor], torch.Tensor] | None  # (B, r) -> (B, r, 3, S); None: shape fixed
     translation_only: bool
 
     def vertex_jacobian(self, rows: torch.Tensor, layout: Layout) -> torch.Tensor:
@@ -100,11 +100,9 @@ class Linearized:
             J[..., 3 * layout.joints + 3 : 3 * layout.joints + 6] = torch.eye(3, dtype=J.dtype, device=J.device)
             return J
         J = self.rows(rows)
-        if self.d_vertices_shape is None:
+        if self.shape_rows is None:
             return torch.cat([J, J.new_zeros(B, r, 3, layout.shapes)], -1)
-        shape_part = torch.gather(self.d_vertices_shape, 1,
-                                  rows[..., None, None].expand(-1, -1, 3, layout.shapes))
-        return torch.cat([J, shape_part], -1)
+        return torch.cat([J, self.shape_rows(rows)], -1)
 
 
 def linearize(model: BodyModel, state, problem, use_chamfer: bool, layout: Layout,
@@ -134,26 +132,40 @@ def linearize(model: BodyModel, state, problem, use_chamfer: bool, layout: Layou
             def rows(r: torch.Tensor, lin=lin, index=index) -> torch.Tensor:
                 return lin.vertex_jacobian(torch.gather(index, 1, r))
         d_kp = torch.cat([lin.d_keypoints, lin.d_keypoints.new_zeros(B, 17, 3, layout.shapes)], -1)
-        d_verts_shape = None
+        shape_rows = None
         if layout.shape_active:
-            d_verts_shape, d_kp_shape = _shape_jacobian(model, state, problem, use_chamfer, vertices, lin.keypoints)
+            shape_rows, d_kp_shape = _shape_jacobian(model, state, problem, use_chamfer, vertices, lin.keypoints)
             d_kp[..., 3 * layout.joints + 6 :] = d_kp_shape
-    return Linearized(vertices, lin.keypoints, d_kp, rows, d_verts_shape, False)
+    return Linearized(vertices, lin.keypoints, d_kp, rows, shape_rows, False)
 
 
 def _shape_jacobian(model: BodyModel, state, problem, use_chamfer: bool, vertices: torch.Tensor,
                     keypoints: torch.Tensor):
-    """Forward differences in the unconstrained shape coordinates, all of them in one batched pass."""
+    """Forward differences in the unconstrained shape coordinates: the keypoints' now, in one batched
+    pass of keypoints only; the vertices' by row, when a residual block asks (a per-row model poses
+    just those rows, a few dozen for a VLP-16, instead of the whole L_3D set six times)."""
     from smplify3d_ros.fitting.stages import posed_rows
 
     B, S = state.shape.shape
     free = state.shape[:, None, :] + SHAPE_STEP * torch.eye(S, dtype=state.shape.dtype, device=state.shape.device)
+    shapes = model.shape_from_free(free.reshape(B * S, S))
     rep = [t.repeat_interleave(S, 0) for t in (state.pose, state.root_orient, state.transl)]
-    repeated = problem.take(torch.arange(B, device=free.device).repeat_interleave(S))
-    out = posed_rows(model, (model.shape_from_free(free.reshape(B * S, S)), *rep), repeated, use_chamfer)
-    d_verts = (out.vertices.reshape(B, S, -1, 3) - vertices[:, None]) / SHAPE_STEP
-    d_kp = (out.keypoints.reshape(B, S, -1, 3) - keypoints[:, None]) / SHAPE_STEP
-    return d_verts.permute(0, 2, 3, 1), d_kp.permute(0, 2, 3, 1)
+    repeated = problem.repeated(S)
+    per_row = model.vertices_per_row
+    out = posed_rows(model, (shapes, *rep), repeated, use_chamfer and not per_row)
+    d_kp = ((out.keypoints.reshape(B, S, -1, 3) - keypoints[:, None]) / SHAPE_STEP).permute(0, 2, 3, 1)
+
+    def rows(index: torch.Tensor) -> torch.Tensor:
+        base = torch.gather(vertices, 1, index[..., None].expand(-1, -1, 3))
+        if per_row:
+            ids = torch.gather(problem.vertex_ids, 1, index).repeat_interleave(S, 0)
+            moved = model(shapes, *rep, ids).vertices
+        else:
+            moved = torch.gather(out.vertices, 1, index.repeat_interleave(S, 0)[..., None].expand(-1, -1, 3))
+        d = (moved.reshape(B, S, -1, 3) - base[:, None]) / SHAPE_STEP
+        return d.permute(0, 2, 3, 1)
+
+    return rows, d_kp
 
 
 # -- residual blocks -------------------------------------------------------------------------------------

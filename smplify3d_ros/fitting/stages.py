@@ -80,6 +80,7 @@ class FitProblem:
     keypoint_depth: torch.Tensor | None = None  # (B, 17) camera-z targets of limb keypoints (NaN: none)
     vertex_ids: torch.Tensor | None = None  # (B, n) each person's L_3D vertices as model vertex ids
     up: torch.Tensor | None = None  # (B, 3) the world's up in the camera frame (ground normal, else −y)
+    _copies: dict = field(default_factory=dict, repr=False)  # `repeated`'s problems, by count
     init_transl: torch.Tensor | None = None  # (B, 3) the translation at the start (image-only depth hold)
 
     def __post_init__(self) -> None:
@@ -89,10 +90,18 @@ class FitProblem:
             self.vertex_ids = self.vertex_subset[self.vertex_index] if len(self.vertex_subset) else self.vertex_index
 
 
+    def repeated(self, count: int) -> FitProblem:
+        """Every person `count` times in a row (the shape Jacobian's perturbed copies), made once: the same
+        tensors on every step keep the body model's vertex-set caches valid."""
+        if count not in self._copies:
+            self._copies[count] = self.take(torch.arange(len(self.use_lidar), device=self.K.device
+                                                         ).repeat_interleave(count))
+        return self._copies[count]
+
     def take(self, rows: torch.Tensor) -> FitProblem:
         """The problem of the people `rows` (repeats allowed): the shape Jacobian's perturbed copies."""
         shared = ("K", "vertex_subset", "empty_subset")
-        picked = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        picked = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "_copies"}
         for name, value in picked.items():
             if name not in shared and value is not None:
                 picked[name] = value[rows]
