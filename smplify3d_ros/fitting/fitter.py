@@ -240,14 +240,15 @@ class Fitter:
         trial = batch.take(rows)
         trial.state = self._placed_state([h for i in range(batch.size) for h in batch.hypotheses[i]],
                                          np.ones(len(rows), dtype=bool))
-        loss = self._refine(trial, init.hypothesis_iterations)  # 0: the hypotheses compared as they start
+        together = min(init.hypothesis_iterations, init.refine_iterations)  # 0: compared as they start
+        loss = self._refine(trial, together)
         for i in np.flatnonzero(batch.builtin):
             mine = np.flatnonzero(rows == i)
             best = int(mine[int(torch.argmin(loss[torch.as_tensor(mine)]))])
             for name in PARAM_FIELDS:
                 with torch.no_grad():
                     getattr(batch.state, name)[i] = getattr(trial.state, name)[best]
-        rest = init.refine_iterations - init.hypothesis_iterations
+        rest = init.refine_iterations - together
         if rest > 0:
             chosen = batch.take(np.flatnonzero(batch.builtin))
             chosen.state = batch.state.take(torch.as_tensor(np.flatnonzero(batch.builtin), device=self.device))
