@@ -136,12 +136,15 @@ class FrameFitter:
         """Undistort the keypoints, move the scan into the camera frame and cut out each person's points.
         Returns the observations and the LiDAR origin in the camera frame."""
         undistorted, extraction = extract_frame_people(frame, self.config.lidar)
+        plane = extraction.ground
+        # the initializer stands people on the ground; a fallback height band is an assumption, not a plane
+        ground = np.array([*plane.normal, plane.offset], dtype=np.float64) if plane.fitted else None
         people = []
         for i, person in enumerate(extraction.people):
             pid = int(frame.person_ids[i]) if i < len(frame.person_ids) else -1
             people.append(PersonObservation(
                 person_id=pid, keypoints=undistorted[i], bbox=np.asarray(person.bbox, dtype=np.float64),
-                points=person.points, init=frame.init_bodies.get(pid) if pid >= 0 else None,
+                points=person.points, init=frame.init_bodies.get(pid) if pid >= 0 else None, ground=ground,
             ))
         return people, frame.T_cam_lidar[:3, 3].copy()
 

@@ -73,6 +73,9 @@ class PersonObservation:
     bbox: np.ndarray  # (4,) float64 x_min, y_min, x_max, y_max (px, undistorted)
     points: np.ndarray  # (M, 3) float32 the person's LiDAR points in the camera frame, m
     init: BodyParams | None = None  # external initial estimate, if any
+    # (4,) float64 the frame's ground plane n·p + d = 0 in the camera frame (n unit, pointing up; d the
+    # camera's height above it), None when no plane was fitted to the scan
+    ground: np.ndarray | None = None
 
 
 @dataclass
@@ -83,6 +86,10 @@ class FitQuality:
     visible_parts: list[str]  # body parts considered visible to the camera
     icp_converged: bool  # whether the rigid LiDAR alignment converged
     final_loss: float  # the last stage's total loss
+    # mean distance from each of the person's points to the nearest visible vertex, m (nan if none): the
+    # half of `chamfer_m` that a ring-scanning LiDAR does not inflate (vertices between its rings have no
+    # point near them however well the body fits); `FLAG_LIDAR_MISMATCH` is set from it
+    points_to_mesh_m: float = float("nan")
 
 
 # Flags a BodyFit may carry.
@@ -92,6 +99,7 @@ FLAG_ICP_NOT_CONVERGED = "icp_not_converged"
 FLAG_EXTERNAL_INIT = "external_init"  # initialized from an upstream estimate
 FLAG_FEW_KEYPOINTS = "few_keypoints"  # too few confident keypoints for a reliable image term
 FLAG_WARM_START = "warm_start"  # a tracked person, fitted from their previous fit with the short warm solve
+FLAG_LIDAR_MISMATCH = "lidar_mismatch"  # the fit missed its points (points_to_mesh_m above fitting.lidar_mismatch_m)
 
 
 @dataclass

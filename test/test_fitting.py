@@ -5,7 +5,7 @@ import numpy as np
 from smplify3d_ros.config import load_config
 from smplify3d_ros.eval.synthetic import default_intrinsics, make_person, perturb
 from smplify3d_ros.fitting.fitter import FitOptions, Fitter
-from smplify3d_ros.types import FLAG_DIVERGED, FLAG_EXTERNAL_INIT, FLAG_IMAGE_ONLY
+from smplify3d_ros.types import FLAG_DIVERGED, FLAG_EXTERNAL_INIT, FLAG_IMAGE_ONLY, FLAG_LIDAR_MISMATCH
 
 # The issue's synthetic person has its LiDAR points sampled uniformly over the visible surface, for which
 # Eq. 7's chamfer is unbiased: the method as published (the `thesis` profile). The `robot` profile is tuned
@@ -117,3 +117,36 @@ def test_a_few_points_still_fix_the_depth_of_an_image_only_person(anny_model):
     assert FLAG_IMAGE_ONLY in fit.flags
     depth_error = abs(fit.params.transl[2] - person.truth.transl[2])
     assert depth_error < 0.3, depth_error  # the image alone would keep the 1.5 m error
+
+
+def _depth_shifted_person(model, shift_m, seed=23):
+    """A synthetic person whose initial estimate is the truth pushed `shift_m` along the viewing ray (the
+    image cannot see that: only the points can)."""
+    people, K = _people(model, 1, seed=seed)
+    person = people[0]
+    person.observation.init = perturb(model, person.truth, np.random.default_rng(seed), depth_m=shift_m,
+                                      limb_deg=0.0)
+    return person, K
+
+
+def test_the_chamfer_binds_a_mesh_started_20_cm_off_its_points(anny_model):
+    fitter = Fitter(load_config().fitting, anny_model)
+    person, K = _depth_shifted_person(anny_model, 0.2)
+    bound = fitter.fit([person.observation], K, options=FitOptions(use_icp=False))[0]
+    loose = fitter.fit([person.observation], K, options=FitOptions(use_icp=False, use_chamfer=False))[0]
+    err = lambda f: abs(f.params.transl[2] - person.truth.transl[2])  # noqa: E731
+    print(f"depth error with L_3D {1000 * err(bound):.0f} mm, without {1000 * err(loose):.0f} mm; "
+          f"points to mesh {1000 * bound.quality.points_to_mesh_m:.1f} mm")
+    print(f"points to mesh without L_3D {1000 * loose.quality.points_to_mesh_m:.1f} mm")
+    assert err(bound) < 0.02
+    assert err(loose) > err(bound) + 0.015  # the image alone undoes only part of it (the body's apparent size)
+    assert bound.quality.points_to_mesh_m < 0.027 < loose.quality.points_to_mesh_m
+    assert FLAG_LIDAR_MISMATCH not in bound.flags
+
+
+def test_a_fit_that_missed_its_points_is_flagged(anny_model):
+    fitter = Fitter(load_config().fitting, anny_model)
+    person, K = _depth_shifted_person(anny_model, 0.5)
+    fit = fitter.fit([person.observation], K, options=FitOptions(use_icp=False, use_chamfer=False))[0]
+    assert fit.quality.points_to_mesh_m > load_config().fitting.lidar_mismatch_m
+    assert FLAG_LIDAR_MISMATCH in fit.flags

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import roma
 import torch
 
-from smplify3d_ros.body.base import BodyModel, BodyOutput
+from smplify3d_ros.body.base import BodyLinearization, BodyModel, BodyOutput, left_jacobian_so3
 from smplify3d_ros.body.joints import BODY_JOINTS
 from smplify3d_ros.keypoints import NUM_KEYPOINTS, PART_INDEX
 
@@ -48,24 +48,36 @@ PART_ROOT_BONES: dict[str, str] = {
 # Anny axes (x left, y back, z up) from canonical axes (x left, y up, z forward): a = C @ s.
 C_ANNY_FROM_CANONICAL = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
+# Phenotypes are kept this far inside [0, 1] when mapped to unconstrained coordinates (logit(1e-4) = -9.2).
+_PHENOTYPE_EPS = 1e-4
+_CACHED_SUBSETS = 4  # vertex sets (and their rest shapes) kept by `AnnyBody._subset` / `_rest`
+
 # Parts of the Anny segmentation that are inside the body (never seen by a camera or a LiDAR).
 _INTERNAL_SEGMENTS = ("eye_back.L", "eye_back.R", "eye_cavity.L", "eye_cavity.R", "mouth_cavity", "tongue")
 
 
 @dataclass(frozen=True)
 class _VertexSubset:
-    """Anny's per-vertex tensors restricted to `index`."""
+    """Anny's per-vertex tensors restricted to the caller's vertices: one set shared by the batch
+    (`vertex_index` (n,)), or one set per body (`vertex_index` (B, n), `per_row`), so that B people posed
+    together skin B·n vertices rather than B times the union of theirs."""
 
     key: torch.Tensor  # the caller's vertex index tensor this subset was built for (cache key)
-    index: torch.Tensor  # (V,) vertex indices: the keypoint support, then the caller's vertices
-    template: torch.Tensor  # (V, 3) template positions
-    blendshapes: torch.Tensor  # (C, V, 3) blend-shape offsets
-    bone_weights: torch.Tensor  # (V, k) skinning weights
-    bone_indices: torch.Tensor  # (V, k) their bones
+    per_row: bool
+    template: torch.Tensor  # (n, 3), per row (B, n, 3): template positions
+    blendshapes: torch.Tensor  # (C, n, 3), per row (C, B, n, 3): blend-shape offsets
+    # the vertices' skinning influences, packed (Anny stores 9 per vertex, 2.5 non-zero on average)
+    vertex: torch.Tensor  # (E,) the vertex of each non-zero influence (per row: flat, row * n + vertex)
+    bone: torch.Tensor  # (E,) its bone (per row: flat, row * bones + bone)
+    weight: torch.Tensor  # (E,) its skinning weight
+    # ... and per vertex, for the rows whose Jacobian a solver asks for
+    slot_weight: torch.Tensor  # (n, 9), per row (B, n, 9): skinning weights (Anny's slots)
+    slot_bone: torch.Tensor  # (n, 9), per row (B, n, 9): their bones
 
 
 class AnnyBody(BodyModel):
     name = "anny"
+    vertices_per_row = True
 
     def __init__(self, shape_sigma: float, shape_bound_weight: float, keypoint_support: int) -> None:
         super().__init__()
@@ -75,15 +87,18 @@ class AnnyBody(BodyModel):
         model = anny.Anny().to(dtype=dtype)
         model.requires_grad_(False)
         self.anny = model
-        self._subset_cache: _VertexSubset | None = None
+        self._subset_cache: list[_VertexSubset] = []  # most recent first, see `_subset`
+        self._rest_cache: list[tuple] = []  # (subset, shape, rest vertices, bone poses, basis), see `_rest`
         self.shape_names = tuple(model.phenotype_labels)
         self.shape_sigma = shape_sigma
         self.shape_bound_weight = shape_bound_weight
         labels = list(model.bone_labels)
         self.bone_index = [labels.index(JOINT_TO_BONE[j]) for j in BODY_JOINTS]
         self.root_bone = labels.index("root")
+        self._init_kinematics(model)
         regressor = anny.KeypointsRegressor.coco(model)
         self._init_keypoints(regressor.regression_weights[:NUM_KEYPOINTS].to(dtype), keypoint_support)
+        self._init_keypoint_bones(model)
         self.register_buffer("C", C_ANNY_FROM_CANONICAL.to(dtype))
         self.faces = torch.as_tensor(model.faces, dtype=torch.int64)
         self.part_of_face = self._face_parts(model, labels)
@@ -104,6 +119,51 @@ class AnnyBody(BodyModel):
         used = (weights != 0).any(dim=0).nonzero()[:, 0]
         self.register_buffer("kp_support", used)
         self.register_buffer("kp_sparse", weights[:, used])
+
+    def _init_keypoint_bones(self, model) -> None:
+        """Keypoints through the bones: a keypoint is a fixed combination of skinned vertices, so
+        k = Σ_b R_b P_kb + t_b s_kb, with [R_b | t_b] bone b's skinning transform, P_kb (from the rest
+        vertices) and s_kb constants. Posing the keypoints, and their Jacobians, then costs a few hundred
+        products instead of skinning their ~1,000 support vertices."""
+        weights = model.vertex_bone_weights[self.kp_support]  # (n_kp, 9)
+        vertex, slot = (weights != 0).nonzero(as_tuple=True)
+        bone = model.vertex_bone_indices[self.kp_support][vertex, slot]
+        mix = self.kp_sparse[:, vertex] * weights[vertex, slot]  # (17, E_kp): keypoint k's share of entry e
+        share = torch.zeros(NUM_KEYPOINTS, len(model.bone_labels), dtype=mix.dtype).index_add_(1, bone, mix)
+        self.register_buffer("kp_template", model.template_vertices[self.kp_support])
+        self.register_buffer("kp_blendshapes", model.blendshapes[:, self.kp_support].contiguous())
+        self.register_buffer("kp_entry_vertex", vertex)
+        self.register_buffer("kp_entry_bone", bone)
+        self.register_buffer("kp_entry_mix", mix)
+        self.register_buffer("kp_bone_share", share)  # (17, bones): s_kb
+
+    def _keypoint_basis(self, rest_vertices: torch.Tensor) -> torch.Tensor:
+        """(B, 17, bones, 3) P_kb from the rest vertices (B, n_kp + V, 3) of a subset."""
+        B = rest_vertices.shape[0]
+        entries = self.kp_entry_mix[None, :, :, None] * rest_vertices[:, self.kp_entry_vertex][:, None]
+        basis = entries.new_zeros(B, NUM_KEYPOINTS, len(self.anny.bone_labels), 3)
+        return basis.index_add_(2, self.kp_entry_bone, entries)
+
+    def _skinned_keypoints(self, basis: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
+        """(B, 17, 3) keypoints (Anny world) from the basis and (B, bones, 4, 4) skinning transforms."""
+        rotated = torch.einsum("bnij,bknj->bki", transforms[..., :3, :3], basis)
+        return rotated + torch.einsum("bni,kn->bki", transforms[..., :3, 3], self.kp_bone_share.to(basis.dtype))
+
+    def _init_kinematics(self, model) -> None:
+        """What `linearize` needs of Anny's skeleton: which bones each optimized joint moves, each joint's
+        parent bone, and the reference orientations of Anny's 'local-ref' pose parameterization."""
+        parents = list(model.bone_parents)
+        moved = torch.zeros(len(parents), len(BODY_JOINTS))
+        for j, bone in enumerate(self.bone_index):
+            for b in range(len(parents)):
+                i = b
+                while i > 0 and i != bone:
+                    i = parents[i]
+                moved[b, j] = float(i == bone)
+        self.register_buffer("bone_moved_by_joint", moved)  # (bones, J)
+        self.joint_parent_bone = [parents[b] for b in self.bone_index]
+        self._linearizable = (model.pose_parameterization == "local-ref"
+                              and model.reference_bone_orientations is not None)
 
     def _face_parts(self, model, labels: list[str]) -> torch.Tensor:
         parents = list(model.bone_parents)
@@ -133,55 +193,96 @@ class AnnyBody(BodyModel):
 
     def shape_prior(self, shape: torch.Tensor) -> torch.Tensor:
         """Phenotypes near the population mean (0.5, spread `shape_sigma`) and inside [0, 1]."""
-        near_mean = (((shape - 0.5) / self.shape_sigma) ** 2).sum(-1)
-        outside = (torch.relu(-shape) + torch.relu(shape - 1.0)) ** 2
-        return near_mean + self.shape_bound_weight * outside.sum(-1)
+        return (self.shape_prior_residuals(shape) ** 2).sum(-1)
 
-    def _posed_canonical(self, shape: torch.Tensor, pose: torch.Tensor, subset: _VertexSubset | None = None):
-        """Vertices (all, or those of `subset`) and joints of the posed body in canonical axes, pelvis at the
-        origin."""
-        B = max(shape.shape[0], pose.shape[0])
+    def shape_prior_residuals(self, shape: torch.Tensor) -> torch.Tensor:
+        near_mean = (shape - 0.5) / self.shape_sigma
+        outside = (torch.relu(-shape) + torch.relu(shape - 1.0)) * self.shape_bound_weight**0.5
+        return torch.cat([near_mean, outside], -1)
+
+    def shape_from_free(self, free: torch.Tensor) -> torch.Tensor:
+        """Phenotypes = sigmoid(free): inside (0, 1) whatever the optimizer does (a penalty only pushes
+        back once outside, and a 2048 px image's pixel residuals outweighed it)."""
+        return torch.sigmoid(free)
+
+    def shape_to_free(self, shape: torch.Tensor) -> torch.Tensor:
+        # phenotypes given at 0 or 1 exactly (presets, clipped estimates) map to a finite logit
+        return torch.logit(shape.clamp(_PHENOTYPE_EPS, 1.0 - _PHENOTYPE_EPS))
+
+    def _deltas(self, pose: torch.Tensor, B: int) -> torch.Tensor:
+        """Anny's per-bone delta transforms of the canonical-axes pose (B, J, 3)."""
         C = self.C.to(pose.dtype)
         rot = C @ roma.rotvec_to_rotmat(pose) @ C.T  # (B, J, 3, 3) in Anny axes
         deltas = torch.eye(4, dtype=pose.dtype, device=pose.device).repeat(B, len(self.anny.bone_labels), 1, 1)
         deltas[:, self.bone_index, :3, :3] = rot.expand(B, -1, -1, -1)
+        return deltas
+
+    def _posed_canonical(self, shape: torch.Tensor, pose: torch.Tensor, subset: _VertexSubset | None = None):
+        """Vertices (all, or those of `subset`), joints and keypoints (None without a subset: the caller
+        regresses them) of the posed body in canonical axes, pelvis at the origin."""
+        B = max(shape.shape[0], pose.shape[0])
+        C = self.C.to(pose.dtype)
+        deltas = self._deltas(pose, B)
+        keypoints = None
         if subset is None:
             out = self.anny(pose_parameters=deltas, phenotype_kwargs=shape.expand(B, -1))
             verts, bone_poses = out["vertices"], out["bone_poses"]
         else:  # Anny's forward, shaping and skinning only the requested vertices
-            anny = self.anny
-            no_changes = shape.new_zeros(B, 0)
-            coeffs = anny._get_phenotype_blendshape_coefficients(shape.expand(B, -1), no_changes, no_changes)
-            rest_vertices, rest_bone_poses = self._rest_subset(coeffs, subset)
-            transforms, bone_poses = anny.get_bone_transforms(deltas, rest_bone_poses)
-            verts = _skin(rest_vertices, subset.bone_weights, subset.bone_indices, transforms)
+            rest_vertices, rest_bone_poses, basis = self._rest(shape.expand(B, -1), subset)
+            transforms, bone_poses = self.anny.get_bone_transforms(deltas, rest_bone_poses)
+            verts = _skin(rest_vertices[:, len(self.kp_support) :], subset, transforms)
+            keypoints = self._skinned_keypoints(basis, transforms)
         pelvis = bone_poses[:, self.root_bone, :3, 3]  # (B, 3)
         verts = (verts - pelvis[:, None]) @ C  # C^T applied to row vectors
         joints = (bone_poses[:, self.bone_index, :3, 3] - pelvis[:, None]) @ C
-        return verts, joints
+        if keypoints is not None:
+            keypoints = (keypoints - pelvis[:, None]) @ C
+        return verts, joints, keypoints
 
     def _subset(self, vertex_index: torch.Tensor) -> _VertexSubset:
-        """Anny's per-vertex data for the keypoint support followed by `vertex_index`, cached for the last
-        index tensor: a fitting stage passes the same tensor on every step, and slicing 136 blend shapes
-        costs as much as using them."""
-        cached = self._subset_cache
-        if cached is not None and cached.key is vertex_index:
-            return cached
+        """Anny's per-vertex data for `vertex_index` (n,) or (B, n), cached for the last index tensor: a
+        fitting stage passes the same tensor on every step, and slicing 136 blend shapes costs as much as
+        using them."""
+        for cached in self._subset_cache:
+            if cached.key is vertex_index:
+                return cached
         anny = self.anny
-        index = torch.cat([self.kp_support, vertex_index])
-        subset = _VertexSubset(
-            vertex_index,
-            index,
-            anny.template_vertices[index],
-            anny.blendshapes[:, index].contiguous(),
-            anny.vertex_bone_weights[index],
-            anny.vertex_bone_indices[index],
-        )
-        self._subset_cache = subset
+        weights, bones = anny.vertex_bone_weights[vertex_index], anny.vertex_bone_indices[vertex_index]
+        nonzero = (weights != 0).nonzero(as_tuple=True)
+        if vertex_index.dim() == 1:
+            vertex, bone = nonzero[0], bones[nonzero]
+            blend = anny.blendshapes[:, vertex_index]
+        else:
+            rows, n = vertex_index.shape
+            vertex, bone = nonzero[0] * n + nonzero[1], nonzero[0] * len(anny.bone_labels) + bones[nonzero]
+            blend = anny.blendshapes[:, vertex_index.flatten()].reshape(-1, rows, n, 3)
+        subset = _VertexSubset(vertex_index, vertex_index.dim() == 2, anny.template_vertices[vertex_index],
+                               blend.contiguous(), vertex, bone, weights[nonzero], weights, bones)
+        # a few recent sets: a fit alternates between keypoints only, its L_3D vertices and the shape
+        # Jacobian's copies, and rebuilding a set costs as much as a forward pass
+        self._subset_cache = [subset, *self._subset_cache[: _CACHED_SUBSETS - 1]]
         return subset
 
+    def _rest(self, shape: torch.Tensor, subset: _VertexSubset) -> tuple[torch.Tensor, ...]:
+        """Rest vertices (B, n_kp + n, 3: the keypoint support, then the subset's), rest bone poses and the
+        keypoint basis of phenotypes `shape` (B, S), kept for the last shape values and subset: stages that
+        move pose or position only (most of a fit) call the model with the same shape at every step, and
+        shaping is half of a forward pass."""
+        if not shape.requires_grad:
+            for cached in self._rest_cache:
+                if cached[0] is subset and cached[1].shape == shape.shape and torch.equal(cached[1], shape):
+                    return cached[2:]
+        no_changes = shape.new_zeros(shape.shape[0], 0)
+        coeffs = self.anny._get_phenotype_blendshape_coefficients(shape, no_changes, no_changes)
+        rest_vertices, rest_bone_poses = self._rest_subset(coeffs, subset)
+        basis = self._keypoint_basis(rest_vertices)
+        if not shape.requires_grad:
+            entry = (subset, shape.detach().clone(), rest_vertices, rest_bone_poses, basis)
+            self._rest_cache = [entry, *self._rest_cache[: _CACHED_SUBSETS - 1]]
+        return rest_vertices, rest_bone_poses, basis
+
     def _rest_subset(self, coeffs: torch.Tensor, subset: _VertexSubset) -> tuple[torch.Tensor, torch.Tensor]:
-        """Rest vertices of `subset` and rest bone poses for blend-shape `coeffs` (B, C).
+        """Rest vertices (keypoint support, then `subset`'s) and rest bone poses for blend-shape `coeffs`.
 
         `anny.get_rest_model` shapes all 13,718 vertices with 136 blend shapes, forward and backward, on
         every call: most of a fitting step. With the bone orientations Anny caches (its default), the bone
@@ -191,10 +292,17 @@ class AnnyBody(BodyModel):
         anny = self.anny
         if anny.bone_orientation != "cached":
             rest = anny.get_rest_model(coeffs)
-            return rest["rest_vertices"][:, subset.index], rest["rest_bone_poses"]
+            full = rest["rest_vertices"]
+            index = subset.key if subset.per_row else subset.key.expand(full.shape[0], -1)
+            rows = torch.gather(full, 1, index[..., None].expand(-1, -1, 3))
+            return torch.cat([full[:, self.kp_support], rows], 1), rest["rest_bone_poses"]
         from anny.skinning.skinning import apply_linear_blendshape
 
-        rest_vertices = apply_linear_blendshape(subset.template, subset.blendshapes, coeffs)
+        kp = apply_linear_blendshape(self.kp_template, self.kp_blendshapes, coeffs)
+        if subset.per_row:
+            rows = subset.template + torch.einsum("bc,cbnd->bnd", coeffs, subset.blendshapes)
+        else:
+            rows = subset.template + torch.einsum("bc,cnd->bnd", coeffs, subset.blendshapes)
         heads = apply_linear_blendshape(anny.template_bone_heads, anny.bone_heads_blendshapes, coeffs)
         M = anny.bone_template_orientation_matrices[None] + torch.einsum(
             "ba,akij->bkij", coeffs, anny.bone_orientation_blendshapes)
@@ -204,7 +312,7 @@ class AnnyBody(BodyModel):
         poses = roma.Rigid(linear=orientation, translation=heads).to_homogeneous()
         if anny.root_identity_orientation:
             poses[:, 0, :3, :3] = torch.eye(3, device=poses.device, dtype=poses.dtype)
-        return rest_vertices, poses
+        return torch.cat([kp, rows], 1), poses
 
     def forward(
         self,
@@ -215,25 +323,104 @@ class AnnyBody(BodyModel):
         vertex_index: torch.Tensor | None = None,
     ) -> BodyOutput:
         if vertex_index is None:
-            verts, joints = self._posed_canonical(shape, pose)
-            kp_verts, kp_weights = verts, self.kp_weights
+            verts, joints, _ = self._posed_canonical(shape, pose)
+            keypoints = torch.einsum("kv,bvd->bkd", self.kp_weights.to(verts.dtype), verts)
         else:
-            n = len(self.kp_support)
-            both, joints = self._posed_canonical(shape, pose, self._subset(vertex_index))
-            kp_verts, verts, kp_weights = both[:, :n], both[:, n:], self.kp_sparse
+            verts, joints, keypoints = self._posed_canonical(shape, pose, self._subset(vertex_index))
         R = roma.rotvec_to_rotmat(root_orient)  # (B, 3, 3)
         verts = verts @ R.transpose(1, 2) + transl[:, None]
         joints = joints @ R.transpose(1, 2) + transl[:, None]
-        keypoints = torch.einsum("kv,bvd->bkd", kp_weights.to(verts.dtype), kp_verts) @ R.transpose(1, 2)
-        keypoints = keypoints + transl[:, None]
+        keypoints = keypoints @ R.transpose(1, 2) + transl[:, None]
         return BodyOutput(verts, joints, keypoints)
 
 
-def _skin(
-    vertices: torch.Tensor, weights: torch.Tensor, indices: torch.Tensor, transforms: torch.Tensor
-) -> torch.Tensor:
-    """Linear blend skinning of (B, V, 3) rest vertices with (V, k) bone weights and indices and (B, J, 4, 4)
-    bone transforms, in plain torch: for the few thousand vertices a fitting step poses this is several
-    times faster than Anny's Warp kernel, whose per-call overhead dominates at that size."""
-    T = (transforms[:, indices] * weights[None, ..., None, None]).sum(2)  # (B, V, 4, 4)
-    return (T[..., :3, :3] @ vertices[..., None])[..., 0] + T[..., :3, 3]
+    def linearize(
+        self,
+        shape: torch.Tensor,
+        pose: torch.Tensor,
+        root_orient: torch.Tensor,
+        transl: torch.Tensor,
+        vertex_index: torch.Tensor,
+    ) -> BodyLinearization:
+        """Analytic Jacobians of linear blend skinning (see `BodyModel.linearize`).
+
+        A change dθ_j of joint j's axis-angle turns bone j, and every bone below it, by the angular
+        velocity ω_j = R_p U_p^T C J_l(θ_j) dθ_j about the joint's posed head c_j (Anny's 'local-ref'
+        chain W_j = W_p U_p^T D_j U_j, D_j = C R(θ_j) C^T; R_p the posed parent bone's rotation, U_p its
+        reference orientation). A skinned point x = Σ_b w_b T_b x_rest then moves by ω_j × l_j, its lever
+        l_j = Σ_b [b below j] w_b (T_b x_rest − c_j): exact, from one forward pass. Keypoints take their
+        levers through the bones (`_init_keypoint_bones`), vertices per requested row.
+        """
+        if not self._linearizable:
+            return super().linearize(shape, pose, root_orient, transl, vertex_index)
+        subset = self._subset(vertex_index)
+        anny, C = self.anny, self.C.to(pose.dtype)
+        B = pose.shape[0]
+        rest_vertices, rest_bone_poses, basis = self._rest(shape.expand(B, -1), subset)
+        transforms, bone_poses = anny.get_bone_transforms(self._deltas(pose, B), rest_bone_poses)
+        rest_vertices = rest_vertices[:, len(self.kp_support) :]
+        pelvis = bone_poses[:, self.root_bone, :3, 3]
+        centres = bone_poses[:, self.bone_index, :3, 3]  # (B, J, 3)
+        U = anny.reference_bone_orientations.to(pose.dtype)[self.joint_parent_bone]
+        axes = bone_poses[:, self.joint_parent_bone, :3, :3] @ U.transpose(-1, -2) @ C @ left_jacobian_so3(pose)
+        R_root = roma.rotvec_to_rotmat(root_orient)
+        M = R_root @ C.T  # Anny world -> camera axes: canonical = C^T (anny − pelvis), camera = R_root canonical
+        axes = torch.einsum("bij,bkjl->bkil", M, axes).transpose(-1, -2)  # (B, J, 3 columns, 3 xyz)
+        root_axes = left_jacobian_so3(root_orient).transpose(-1, -2)  # (B, 3 columns, 3 xyz)
+        moved = self.bone_moved_by_joint.to(pose.dtype)  # (bones, J)
+
+        def jacobian(lever: torch.Tensor, centred: torch.Tensor) -> torch.Tensor:
+            """(B, r, J, 3) camera-axes lever arms and (B, r, 3) offsets from transl -> (B, r, 3, P)."""
+            r = lever.shape[1]
+            d_pose = torch.cross(axes[:, None], lever[:, :, :, None].expand(-1, -1, -1, 3, -1), dim=-1)
+            d_pose = d_pose.permute(0, 1, 4, 2, 3).reshape(B, r, 3, -1)  # column j * 3 + c
+            d_root = torch.cross(root_axes[:, None], centred[:, :, None].expand(-1, -1, 3, -1), dim=-1)
+            d_transl = torch.eye(3, dtype=pose.dtype, device=pose.device).expand(B, r, 3, 3)
+            return torch.cat([d_pose, d_root.transpose(-1, -2), d_transl], -1)
+
+        def to_camera(x: torch.Tensor) -> torch.Tensor:  # (B, r, ..., 3) Anny-world vectors
+            return torch.einsum("bij,br...j->br...i", M, x)
+
+        # keypoints: k = Σ_b (R_b P_kb + t_b s_kb); bone b's share of k moves with the joints above b
+        share = self.kp_bone_share.to(pose.dtype)  # (17, bones)
+        per_bone = (torch.einsum("bnij,bknj->bkni", transforms[..., :3, :3], basis)
+                    + transforms[:, None, :, :3, 3] * share[None, ..., None])  # (B, 17, bones, 3)
+        keypoints = per_bone.sum(2)
+        kp_lever = torch.einsum("nj,bknd->bkjd", moved, per_bone) - (share @ moved)[None, ..., None] * centres[:, None]
+        kp_centred = to_camera(keypoints - pelvis[:, None])
+        verts = _skin(rest_vertices, subset, transforms)
+        centred = to_camera(verts - pelvis[:, None])
+
+        def rows(index: torch.Tensor) -> torch.Tensor:
+            if subset.per_row:
+                batch = torch.arange(B, device=index.device)[:, None]
+                w, bones = subset.slot_weight[batch, index], subset.slot_bone[batch, index]  # (B, r, 9)
+            else:
+                w, bones = subset.slot_weight[index], subset.slot_bone[index]
+            offset = (torch.arange(B, device=index.device) * transforms.shape[1])[:, None, None]
+            T = transforms.reshape(-1, 4, 4)[bones + offset]  # (B, r, 9, 4, 4)
+            rest = torch.gather(rest_vertices, 1, index[..., None].expand(-1, -1, 3))
+            posed = (T[..., :3, :3] @ rest[:, :, None, :, None])[..., 0] + T[..., :3, 3]  # (B, r, 9, 3)
+            mw = w[..., None] * moved[bones]  # (B, r, 9, J)
+            lever = torch.einsum("brsj,brsd->brjd", mw, posed) - mw.sum(2)[..., None] * centres[:, None]
+            return jacobian(to_camera(lever), torch.gather(centred, 1, index[..., None].expand(-1, -1, 3)))
+
+        return BodyLinearization(centred + transl[:, None], kp_centred + transl[:, None],
+                                 jacobian(to_camera(kp_lever), kp_centred), rows)
+
+
+def _skin(vertices: torch.Tensor, subset: _VertexSubset, transforms: torch.Tensor) -> torch.Tensor:
+    """Linear blend skinning of (B, V, 3) rest vertices with the subset's packed influences and (B, J, 4, 4)
+    bone transforms, in plain torch: the influences' transforms are blended per vertex, then applied. For
+    the few thousand vertices a fitting step poses this is several times faster than Anny's Warp kernel,
+    whose per-call overhead dominates at that size, and packing skips Anny's zero-weight slots."""
+    B, V = vertices.shape[:2]
+    if subset.per_row:
+        flat = transforms[..., :3, :].reshape(-1, 12)  # (B * bones, 12)
+        weighted = subset.weight[:, None] * flat[subset.bone]
+        T = weighted.new_zeros(B * V, 12).index_add_(0, subset.vertex, weighted)
+    else:
+        weighted = subset.weight[:, None] * transforms[:, subset.bone, :3].flatten(2)  # (B, E, 12)
+        T = weighted.new_zeros(B, V, 12).index_add_(1, subset.vertex, weighted)
+    T = T.reshape(B, V, 3, 4)
+    return (T[..., :3] @ vertices[..., None])[..., 0] + T[..., 3]

@@ -68,20 +68,47 @@ class InitConfig:
     torso_height: float
     shoulder_width: float
     hip_width: float
-    side_on_cos: float
+    ankle_height: float
     lidar_surface_offset: float
     keypoint_conf: float
-    face_conf: float
+    torso_box_pad: float
+    torso_depth_band: float
+    lidar_heading_min_points: int
+    lidar_heading_min_spread: float
+    lidar_heading_max_ratio: float
+    heading_hypotheses: int
+    hypothesis_merge_deg: float
+    limb_keypoint_conf: float
+    limb_radius: float
+    limb_depth_band: float
+    limb_min_points: int
+    limb_depth_percentile: float
+    limb_surface_offset: float
+    limb_depth_sigma: float
     refine_iterations: int
+    hypothesis_iterations: int
     refine_lr: float
     refine_pose_weight: float
+    refine_chamfer: float
+    refine_keypoint_depth: float
+    refine_max_vertices: int
 
     def __post_init__(self) -> None:
-        for name in ("body_height", "torso_height", "shoulder_width", "hip_width", "refine_lr"):
+        for name in ("body_height", "torso_height", "shoulder_width", "hip_width", "refine_lr", "limb_radius",
+                     "limb_depth_band", "limb_depth_sigma", "torso_depth_band", "lidar_heading_min_spread"):
             require(getattr(self, name) > 0, f"{name} must be > 0")
-        require(self.lidar_surface_offset >= 0, "lidar_surface_offset must be >= 0")
+        for name in ("lidar_surface_offset", "ankle_height", "torso_box_pad",
+                     "limb_surface_offset", "refine_chamfer", "refine_keypoint_depth", "hypothesis_merge_deg"):
+            require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(self.refine_iterations >= 0, "refine_iterations must be >= 0")
-        require(0 <= self.keypoint_conf <= 1 and 0 <= self.face_conf <= 1, "confidences must be in [0, 1]")
+        require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")
+        require(self.hypothesis_iterations >= 0, "hypothesis_iterations must be >= 0 (at most refine_iterations run)")
+        require(self.heading_hypotheses >= 1, "heading_hypotheses must be >= 1")
+        require(self.lidar_heading_min_points >= 2 and self.limb_min_points >= 1,
+                "lidar_heading_min_points must be >= 2 and limb_min_points >= 1")
+        require(0 < self.lidar_heading_max_ratio <= 1, "lidar_heading_max_ratio must be in (0, 1]")
+        require(0 <= self.limb_depth_percentile <= 100, "limb_depth_percentile must be in [0, 100]")
+        require(0 <= self.keypoint_conf <= 1 and 0 <= self.limb_keypoint_conf <= 1, "confidences must be in [0, 1]")
 
 
 @dataclass
@@ -93,13 +120,18 @@ class LossWeights:
     shape: float  # λ_β
     chamfer: float  # λ_3D in stage 2 (and single-stage)
     chamfer_final: float  # λ_3D in stage 3
+    chamfer_scale: float  # λ_3D in stage 1, which then moves the translation too (0: Eq. 12, shape only)
     occlusion: float  # λ_θocc
     init_pose: float  # the same prior on the joints of *visible* parts (0 in the thesis)
+    neutral: float  # Gaussian pose prior around the anatomical neutral, per range of motion (0 in the thesis)
+    upright: float  # prior on the body's tilt from the world's up (sine of the tilt), 0: none
+    image_depth: float  # holds the initial depth of people fitted without L_3D (relative error), 0: free
     sigma_px: float  # Geman-McClure σ, stages 1-2 (and single-stage)
     sigma_px_final: float  # Geman-McClure σ, stage 3
 
     def __post_init__(self) -> None:
-        for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "occlusion", "init_pose"):
+        for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "chamfer_scale", "occlusion",
+                     "init_pose", "neutral", "upright", "image_depth"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(self.sigma_px > 0 and self.sigma_px_final > 0, "sigma_px values must be > 0")
 
@@ -107,7 +139,7 @@ class LossWeights:
 @dataclass
 class OptimizerProfile:
     scheme: Literal["three_stage", "single_stage"]
-    optimizer: Literal["adam"]
+    optimizer: Literal["adam", "lm"]
     lr: float
     betas: tuple[float, float]
     iterations: tuple[int, int, int]
@@ -117,12 +149,18 @@ class OptimizerProfile:
     chamfer_max_vertices: int
     chamfer_max_points: int
     chamfer_vertex_weight: float
+    mesh_shape: bool
     keypoint_alignment: Literal["hips", "centroid"]
     square_weights: bool
     weights: LossWeights
+    lm_damping: float
+    pixel_reference_px: float
 
     def __post_init__(self) -> None:
         require(self.lr > 0, "lr must be > 0")
+        require(self.optimizer in ("adam", "lm"), "optimizer must be adam or lm")
+        require(self.lm_damping > 0, "lm_damping must be > 0")
+        require(self.pixel_reference_px >= 0, "pixel_reference_px must be >= 0 (0 = raw pixels)")
         require(all(i >= 0 for i in self.iterations), "iterations must be >= 0")
         require(self.single_stage_iterations >= 0, "single_stage_iterations must be >= 0")
         require(self.early_stop_rel_tol >= 0, "early_stop_rel_tol must be >= 0")
@@ -148,6 +186,7 @@ class FittingConfig:
     num_threads: int
     seed: int
     divergence_factor: float
+    lidar_mismatch_m: float
 
     def __post_init__(self) -> None:
         require(self.profile in self.profiles, f"profile {self.profile!r} is not one of {sorted(self.profiles)}")
@@ -155,6 +194,7 @@ class FittingConfig:
         require(self.min_points_depth >= 1, "min_points_depth must be >= 1")
         require(self.min_keypoints >= 0, "min_keypoints must be >= 0")
         require(self.divergence_factor > 1, "divergence_factor must be > 1")
+        require(self.lidar_mismatch_m > 0, "lidar_mismatch_m must be > 0")
         require(self.num_threads >= 0, "num_threads must be >= 0 (0 = leave torch's setting)")
 
     @property

@@ -1,9 +1,12 @@
 """The method on one frame's people: initial estimate -> visibility -> ICP -> stages -> BodyFit.
 
 `Fitter.fit(people, K)` runs the thesis's steps in order, batched over the people of a frame; each step
-is a method over one `Batch`, the state the steps share. The people come as `PersonObservation`s in the
-camera frame (keypoints undistorted, LiDAR points cut out): `frame_fitter.FrameFitter` makes them from a
-whole `Frame`.
+is a method over one `Batch`, the state the steps share. From the built-in initializer (no upstream HMR,
+the robot's usual case) each person starts as several heading hypotheses (`fitting.heading`), refined
+together and reduced to the one the objective prefers before the ICP. The stages run Adam or
+Levenberg-Marquardt (`fitting.solver`) on the same objective, as the profile says. The people come as
+`PersonObservation`s in the camera frame (keypoints undistorted, LiDAR points cut out):
+`frame_fitter.FrameFitter` makes them from a whole `Frame`.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from smplify3d_ros.body.base import PARAM_FIELDS
 from smplify3d_ros.fitting import init as initializer
 from smplify3d_ros.fitting.config import FittingConfig
 from smplify3d_ros.fitting.icp import align_mesh_to_points
+from smplify3d_ros.fitting.limbs import limb_depth_targets
 from smplify3d_ros.fitting.losses import nearest_sq_distances, project
 from smplify3d_ros.fitting.options import FitOptions
 from smplify3d_ros.fitting.stages import FitProblem, FitState, StageSpec, optimize, run_stage
@@ -32,6 +36,7 @@ from smplify3d_ros.types import (
     FLAG_FEW_KEYPOINTS,
     FLAG_ICP_NOT_CONVERGED,
     FLAG_IMAGE_ONLY,
+    FLAG_LIDAR_MISMATCH,
     BodyFit,
     BodyParams,
     FitQuality,
@@ -68,6 +73,8 @@ class Batch:
     flags: list[set[str]]
     builtin: np.ndarray  # (B,) bool: started from the built-in initializer
     state: FitState | None = None
+    hypotheses: list[list[BodyParams]] = dataclasses.field(default_factory=list)  # built-in starts per person
+    keypoint_depth: np.ndarray | None = None  # (B, 17) limb-depth targets, camera z (NaN: none)
     problem: FitProblem | None = None  # the stages' observations (also what the fit quality is measured on)
     icp_ok: np.ndarray | None = None  # (B,) bool
     final_loss: torch.Tensor | None = None  # (B,)
@@ -75,6 +82,19 @@ class Batch:
     @property
     def size(self) -> int:
         return len(self.people)
+
+    def take(self, rows: np.ndarray) -> Batch:
+        """The people of `rows` (repeats allowed), without a state: a batch of hypotheses."""
+        index = torch.as_tensor(rows, device=self.keypoints.device)
+        return Batch(
+            people=[self.people[i] for i in rows], K=self.K, lidar_origin=self.lidar_origin,
+            options=self.options, rng=self.rng, keypoints=self.keypoints[index],
+            confidence=self.confidence[index], use_lidar=self.use_lidar[rows],
+            occluded_image=[self.occluded_image[i] for i in rows],
+            occluded_lidar=[self.occluded_lidar[i] for i in rows], occluded_joints=self.occluded_joints[rows],
+            flags=[set() for _ in rows], builtin=self.builtin[rows],
+            keypoint_depth=None if self.keypoint_depth is None else self.keypoint_depth[rows],
+        )
 
 
 def _pad_rows(rows: list[np.ndarray], width: int, fill) -> tuple[np.ndarray, np.ndarray]:
@@ -167,11 +187,14 @@ class Fitter:
         )
 
     def _initialize(self, batch: Batch) -> None:
-        """Step 1: an external estimate of this model when a person has one, else the built-in one."""
+        """Step 1: an external estimate of this model when a person has one, else the built-in one's
+        hypotheses (the first stands in until `_refine_builtin` picks one)."""
         cfg = self.config
         mean_shape = self.model.mean_shape().cpu().double().numpy()
         K = batch.K.cpu().double().numpy()
         params: list[BodyParams] = []
+        batch.hypotheses = [[] for _ in batch.people]
+        batch.keypoint_depth = np.full((batch.size, 17), np.nan)
         for i, p in enumerate(batch.people):
             if p.init is not None and p.init.model == self.model.name:
                 params.append(p.init.copy())
@@ -180,32 +203,71 @@ class Fitter:
             if p.init is not None:
                 log.warning("person %d: initial estimate is for %r, not %r; using the built-in init",
                             p.person_id, p.init.model, self.model.name)
-            root, pelvis = initializer.builtin_root(p, K, cfg.init, bool(batch.use_lidar[i]))
-            params.append(BodyParams(self.model.name, mean_shape.copy(), self._neutral_pose.copy(), root, pelvis))
+            hypotheses = initializer.builtin_hypotheses(p, K, cfg.init, bool(batch.use_lidar[i]),
+                                                        len(p.points) >= cfg.min_points_depth)
+            for root, pelvis in hypotheses:
+                batch.hypotheses[i].append(BodyParams(self.model.name, mean_shape.copy(),
+                                                      self._neutral_pose.copy(), root, pelvis))
+            params.append(batch.hypotheses[i][0])
             batch.builtin[i] = True
-        batch.state = FitState(*self.model.params_tensors(params))
-        if batch.builtin.any():  # place the pelvis: the model's rotation centre may not be its pelvis (SMPL)
-            state = batch.state
+            if batch.use_lidar[i]:
+                depth = float(batch.hypotheses[i][0].transl[2])
+                batch.keypoint_depth[i] = limb_depth_targets(p.keypoints, K, p.points, depth, cfg.init)
+        batch.state = self._placed_state(params, batch.builtin)
+
+    def _placed_state(self, params: list[BodyParams], builtin: np.ndarray) -> FitState:
+        """The state of these parameters, built-in estimates moved so that their hip midpoint is where
+        their `transl` says (the model's rotation centre may not be its pelvis: SMPL)."""
+        state = FitState.from_params(self.model, params)
+        if builtin.any():
             out = self._forward(state)
             pelvis_now = 0.5 * (out.keypoints[:, 11] + out.keypoints[:, 12])
-            rows = torch.as_tensor(np.flatnonzero(batch.builtin), device=self.device)
+            rows = torch.as_tensor(np.flatnonzero(builtin), device=self.device)
             with torch.no_grad():
                 state.transl[rows] += state.transl[rows] - pelvis_now[rows]
+        return state
 
     def _refine_builtin(self, batch: Batch) -> None:
-        """The built-in estimate's limbs: a short fit to the 2D keypoints with strong priors, translation
-        fixed (people with an external estimate keep theirs)."""
-        cfg = self.config
-        if not batch.builtin.any() or cfg.init.refine_iterations <= 0:
+        """The built-in estimate: every heading hypothesis of every person refined together for
+        `hypothesis_iterations` (pose, orientation and position against the keypoints, the points and the
+        limb depths, anatomical priors only: there is no estimate to hold), each person's lowest loss
+        kept, then refined alone for the rest of `refine_iterations`. People with an external estimate
+        keep theirs."""
+        init = self.config.init
+        if not batch.builtin.any() or init.refine_iterations <= 0:
             return
-        state = batch.state
-        problem = self._problem(batch)
-        spec = StageSpec("init", ("pose", "root_orient"), cfg.init.refine_iterations, None,
-                         cfg.optimizer.weights.sigma_px, 0.0, priors=True)
-        keep = state.clone()
-        diverged = torch.zeros(batch.size, dtype=torch.bool, device=self.device)
-        run_stage(self.model, state, problem, spec, _refine_profile(cfg), cfg.divergence_factor, diverged)
-        state.copy_rows_from(keep, torch.as_tensor(~batch.builtin, device=self.device))
+        rows = np.array([i for i in range(batch.size) for _ in batch.hypotheses[i]], dtype=np.int64)
+        trial = batch.take(rows)
+        trial.state = self._placed_state([h for i in range(batch.size) for h in batch.hypotheses[i]],
+                                         np.ones(len(rows), dtype=bool))
+        together = min(init.hypothesis_iterations, init.refine_iterations)  # 0: compared as they start
+        loss = self._refine(trial, together)
+        for i in np.flatnonzero(batch.builtin):
+            mine = np.flatnonzero(rows == i)
+            best = int(mine[int(torch.argmin(loss[torch.as_tensor(mine)]))])
+            for name in PARAM_FIELDS:
+                with torch.no_grad():
+                    getattr(batch.state, name)[i] = getattr(trial.state, name)[best]
+        rest = init.refine_iterations - together
+        if rest > 0:
+            chosen = batch.take(np.flatnonzero(batch.builtin))
+            chosen.state = batch.state.take(torch.as_tensor(np.flatnonzero(batch.builtin), device=self.device))
+            self._refine(chosen, rest)
+            batch.state.copy_rows_from_subset(chosen.state, torch.as_tensor(np.flatnonzero(batch.builtin)))
+
+    def _refine(self, trial: Batch, iterations: int) -> torch.Tensor:
+        """`iterations` of the built-in init's refinement of `trial`'s state, in place; (B,) final losses
+        (inf where diverged)."""
+        init = self.config.init
+        problem = self._problem(trial, init.refine_max_vertices)  # coarse: the start is decimetres off
+        params = ("pose", "root_orient", "transl") if init.refine_chamfer > 0 else ("pose", "root_orient")
+        spec = StageSpec("init", params, iterations, None, self.config.optimizer.weights.sigma_px,
+                         init.refine_chamfer, priors=True, hold=False, keypoint_depth_weight=init.refine_keypoint_depth,
+                         keypoint_depth_sigma=init.limb_depth_sigma)
+        diverged = torch.zeros(trial.size, dtype=torch.bool, device=self.device)
+        _, loss = run_stage(self.model, trial.state, problem, spec, _refine_profile(self.config),
+                            self.config.divergence_factor, diverged)
+        return torch.where(diverged | ~torch.isfinite(loss), torch.full_like(loss, float("inf")), loss)
 
     def _align_to_points(self, batch: Batch) -> None:
         """Step 2: ICP of the LiDAR-visible vertices to each person's points (Sec. 3.3)."""
@@ -256,16 +318,19 @@ class Fitter:
             err = (project(out.keypoints, batch.K) - batch.keypoints).norm(dim=-1)
             weights = batch.confidence * (batch.confidence >= self.config.init.keypoint_conf)
             reprojection = (err * weights).sum(-1) / weights.sum(-1).clamp(min=1e-9)
-            visible = torch.gather(out.vertices[:, problem.vertex_subset], 1,
-                                   problem.vertex_index[..., None].expand(-1, -1, 3))
+            visible = torch.gather(out.vertices, 1, problem.vertex_ids[..., None].expand(-1, -1, 3))
             d_vp = nearest_sq_distances(visible, problem.points, problem.point_mask).sqrt()
             d_pv = nearest_sq_distances(problem.points, visible, problem.vertex_mask).sqrt()
-            centers = self.model.rotation_center(state.shape, state.transl)
-        as_np = {name: getattr(state, name).cpu().double().numpy() for name in PARAM_FIELDS}
+            args = state.body_args(self.model)
+            centers = self.model.rotation_center(args[0], state.transl)
+        as_np = {name: t.cpu().double().numpy() for name, t in zip(PARAM_FIELDS, args)}
         fits = []
         for i, p in enumerate(batch.people):
             n_v, n_p = int(problem.vertex_mask[i].sum()), int(problem.point_mask[i].sum())
             chamfer = 0.5 * float(d_vp[i, :n_v].mean() + d_pv[i, :n_p].mean()) if n_v and n_p else float("nan")
+            to_mesh = float(d_pv[i, :n_p].mean()) if n_v and n_p else float("nan")
+            if batch.use_lidar[i] and to_mesh > self.config.lidar_mismatch_m:
+                batch.flags[i].add(FLAG_LIDAR_MISMATCH)
             fits.append(BodyFit(
                 person_id=p.person_id,
                 params=BodyParams(self.model.name, *(as_np[n][i] for n in PARAM_FIELDS)),
@@ -281,6 +346,7 @@ class Fitter:
                     visible_parts=[name for name, occ in zip(PART_NAMES, batch.occluded_image[i]) if not occ],
                     icp_converged=bool(batch.icp_ok[i]),
                     final_loss=float(batch.final_loss[i]),
+                    points_to_mesh_m=to_mesh,
                 ),
                 flags=batch.flags[i],
             ))
@@ -292,12 +358,13 @@ class Fitter:
 
     def _forward(self, state: FitState):
         with torch.no_grad():
-            return self.model(state.shape, state.pose, state.root_orient, state.transl)
+            return self.model(*state.body_args(self.model))
 
     def _move(self, state: FitState, i: int, T: np.ndarray) -> None:
         """Move person i's body by the rigid transform T (camera frame)."""
         with torch.no_grad():
-            center = self.model.rotation_center(state.shape[i : i + 1], state.transl[i : i + 1])[0]
+            shape = self.model.shape_from_free(state.shape[i : i + 1])
+            center = self.model.rotation_center(shape, state.transl[i : i + 1])[0]
             root, transl, _ = move_body(state.root_orient[i].cpu().double().numpy(),
                                         state.transl[i].cpu().double().numpy(), center.cpu().double().numpy(), T)
             state.root_orient[i] = torch.as_tensor(root, dtype=self.dtype, device=self.device)
@@ -311,14 +378,16 @@ class Fitter:
         return [visible_vertices(verts[i], self.faces_np, self.part_of_face_np, batch.lidar_origin, threshold,
                                  batch.occluded_lidar[i]) for i in range(batch.size)]
 
-    def _problem(self, batch: Batch) -> FitProblem:
-        """The batched observations of the current bodies: visible vertices (subsampled), points, priors."""
+    def _problem(self, batch: Batch, max_vertices: int | None = None) -> FitProblem:
+        """The batched observations of the current bodies: visible vertices (subsampled to `max_vertices`,
+        default the profile's `chamfer_max_vertices`), points, priors."""
         opt = self.config.optimizer
+        max_vertices = opt.chamfer_max_vertices if max_vertices is None else max_vertices
         masks = self._visible_masks(batch, self._forward(batch.state).vertices.cpu().numpy())
         vertex_rows, point_rows = [], []
         for i, p in enumerate(batch.people):
             index = np.flatnonzero(masks[i])
-            index = index[_subsample(len(index), opt.chamfer_max_vertices, batch.rng)]
+            index = index[_subsample(len(index), max_vertices, batch.rng)]
             points = p.points[_subsample(len(p.points), opt.chamfer_max_points, batch.rng)]
             vertex_rows.append(index if batch.use_lidar[i] else index[:0])
             point_rows.append(points if batch.use_lidar[i] else points[:0])
@@ -336,11 +405,31 @@ class Fitter:
             vertex_mask=torch.as_tensor(vmask, device=dev),
             occluded_joints=torch.as_tensor(batch.occluded_joints, dtype=self.dtype, device=dev),
             init_pose=batch.state.pose.detach().clone(),
+            init_transl=batch.state.transl.detach().clone(),
             use_lidar=torch.as_tensor(batch.use_lidar, device=dev),
+            pixel_scale=self._pixel_scale(batch),
+            up=torch.as_tensor(np.stack([p.ground[:3] if p.ground is not None else (0.0, -1.0, 0.0)
+                                         for p in batch.people]), dtype=self.dtype, device=dev),
+            keypoint_depth=None if batch.keypoint_depth is None else torch.as_tensor(
+                batch.keypoint_depth, dtype=self.dtype, device=dev),
         )
+
+    def _pixel_scale(self, batch: Batch) -> torch.Tensor | None:
+        """(B,) reference height / each person's expected height in the image (f · stature / depth), the
+        factor on their pixel residuals; None when the profile works in raw pixels."""
+        reference = self.config.optimizer.pixel_reference_px
+        if reference <= 0:
+            return None
+        with torch.no_grad():
+            shape = self.model.shape_from_free(batch.state.shape)
+            depth = self.model.rotation_center(shape, batch.state.transl)[:, 2].clamp(min=0.3)
+        f = 0.5 * (batch.K[0, 0] + batch.K[1, 1])
+        return reference * depth / (f * self.config.init.body_height)
 
 
 def _refine_profile(cfg: FittingConfig):
     opt = cfg.optimizer
     weights = dataclasses.replace(opt.weights, pose=cfg.init.refine_pose_weight)
-    return dataclasses.replace(opt, lr=cfg.init.refine_lr, weights=weights, early_stop_rel_tol=0.0)
+    # Adam runs every refinement step (its loss creeps down for long); LM stops each person on its own
+    tol = opt.early_stop_rel_tol if opt.optimizer == "lm" else 0.0
+    return dataclasses.replace(opt, lr=cfg.init.refine_lr, weights=weights, early_stop_rel_tol=tol)

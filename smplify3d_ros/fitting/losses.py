@@ -60,15 +60,21 @@ def reprojection_loss(
     confidence: torch.Tensor,
     sigma: float,
     align: str | None = None,
+    scale: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """L_J (Eq. 3): Σ_i c_i² Σ_xy ρ(Π(J_i) − J_est,i), (B, K, 2) pixels and (B, K) confidences.
+    """L_J (Eq. 3): Σ_i c_i² Σ_xy ρ(s (Π(J_i) − J_est,i)), (B, K, 2) pixels and (B, K) confidences.
 
     With `align` (Eq. 11-12, `hips` or `centroid`, see `alignment_shift`) the detected keypoints are first
-    shifted onto the projected ones: J_est^algn = J_est + shift.
+    shifted onto the projected ones: J_est^algn = J_est + shift. `scale` (B,) is s, per person (None: 1):
+    the fitter passes reference size / the person's size in the image, so that σ and the weights mean
+    the same for a person 80 px tall in a 640 px image and 400 px tall in a 2048 px one.
     """
     if align is not None:
         target = target + alignment_shift(projected, target, confidence, align)[:, None]
-    rho = geman_mcclure(projected - target, sigma).sum(-1)
+    residual = projected - target
+    if scale is not None:
+        residual = residual * scale[:, None, None]
+    rho = geman_mcclure(residual, sigma).sum(-1)
     return (confidence**2 * rho).sum(-1)
 
 
@@ -136,3 +142,28 @@ def occlusion_prior(pose: torch.Tensor, init_pose: torch.Tensor, joint_mask: tor
     q = roma.rotvec_to_unitquat(pose)
     q0 = roma.rotvec_to_unitquat(init_pose)
     return ((1.0 - (q * q0).sum(-1) ** 2) * joint_mask).sum(-1)
+
+
+def keypoint_depth_loss(keypoints: torch.Tensor, target: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Σ_k ρ(z_k − target_k) over the keypoints with a target (non-NaN), Geman-McClure with scale σ (m):
+    the limb depths the LiDAR measured (`fitting.limbs`), robust to the one in six that is another
+    limb's or the torso's. keypoints (B, 17, 3) camera frame, target (B, 17)."""
+    valid = torch.isfinite(target)
+    diff = torch.where(valid, keypoints[..., 2] - torch.nan_to_num(target), torch.zeros_like(target))
+    return geman_mcclure(diff, sigma).sum(-1)
+
+
+def depth_hold_residuals(transl: torch.Tensor, init_transl: torch.Tensor, use_lidar: torch.Tensor) -> torch.Tensor:
+    """(B,) (z − z₀) / z₀ for people without L_3D (0 for the others): without points, the image's scale
+    gives the depth only through the assumed body size, no better than the initializer's estimate, and a
+    free depth drifts along that ridge."""
+    z0 = init_transl[:, 2].clamp(min=0.3)
+    return torch.where(use_lidar, torch.zeros_like(z0), (transl[:, 2] - init_transl[:, 2]) / z0)
+
+
+def upright_residuals(root_orient: torch.Tensor, up: torch.Tensor) -> torch.Tensor:
+    """(B, 3) the body's up axis (canonical y, turned by `root_orient`) crossed with the world's up (B, 3),
+    camera frame: its norm is the sine of the body's tilt from upright. People mostly stand, sit or walk
+    upright; without LiDAR a 2D fit can lay a body towards the camera and project nearly alike."""
+    body_up = roma.rotvec_to_rotmat(root_orient)[..., :, 1]
+    return torch.cross(body_up, up, dim=-1)

@@ -7,12 +7,13 @@ flagged, without stopping the others.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import torch
 
 from smplify3d_ros.body.base import PARAM_FIELDS, BodyModel, BodyOutput
-from smplify3d_ros.fitting import losses
+from smplify3d_ros.fitting import losses, solver
 from smplify3d_ros.fitting.config import LossWeights, OptimizerProfile
 
 PARAM_NAMES = PARAM_FIELDS  # FitState fields, in BodyModel.forward order
@@ -20,15 +21,38 @@ PARAM_NAMES = PARAM_FIELDS  # FitState fields, in BodyModel.forward order
 
 @dataclass
 class FitState:
-    """Batched body parameters being optimized, (B, ...) each."""
+    """Batched body parameters being optimized, (B, ...) each.
+
+    `shape` holds the model's unconstrained shape coordinates (`BodyModel.shape_from_free`: Anny's
+    phenotype logits), so that no optimizer step can leave the model's shape range.
+    """
 
     shape: torch.Tensor
     pose: torch.Tensor
     root_orient: torch.Tensor
     transl: torch.Tensor
 
+    @classmethod
+    def from_params(cls, model: BodyModel, params) -> FitState:
+        shape, pose, root_orient, transl = model.params_tensors(params)
+        return cls(model.shape_to_free(shape), pose, root_orient, transl)
+
+    def body_args(self, model: BodyModel) -> tuple[torch.Tensor, ...]:
+        """(shape, pose, root_orient, transl) as the model takes them."""
+        return model.shape_from_free(self.shape), self.pose, self.root_orient, self.transl
+
     def clone(self) -> FitState:
         return FitState(*(getattr(self, n).detach().clone() for n in PARAM_NAMES))
+
+    def take(self, rows: torch.Tensor) -> FitState:
+        """A copy of the people `rows` (int64 positions)."""
+        return FitState(*(getattr(self, n).detach()[rows].clone() for n in PARAM_NAMES))
+
+    def copy_rows_from_subset(self, other: FitState, rows: torch.Tensor) -> None:
+        """Rows `rows` of this state from `other`'s rows 0..len(rows)-1 (the inverse of `take`)."""
+        with torch.no_grad():
+            for n in PARAM_NAMES:
+                getattr(self, n)[rows] = getattr(other, n)
 
     def copy_rows_from(self, other: FitState, rows: torch.Tensor) -> None:
         with torch.no_grad():
@@ -51,6 +75,51 @@ class FitProblem:
     occluded_joints: torch.Tensor  # (B, J) joints driving image-occluded parts (L_θocc)
     init_pose: torch.Tensor  # (B, J, 3) the pose L_θocc holds occluded parts to
     use_lidar: torch.Tensor  # (B,) bool: enough points for the 3D term
+    pixel_scale: torch.Tensor | None = None  # (B,) factor on each person's pixel residuals (None: 1)
+    empty_subset: torch.Tensor | None = None  # (0,) int64: no vertex (one tensor, so model caches hold)
+    keypoint_depth: torch.Tensor | None = None  # (B, 17) camera-z targets of limb keypoints (NaN: none)
+    vertex_ids: torch.Tensor | None = None  # (B, n) each person's L_3D vertices as model vertex ids
+    up: torch.Tensor | None = None  # (B, 3) the world's up in the camera frame (ground normal, else −y)
+    _copies: dict = field(default_factory=dict, repr=False)  # `repeated`'s problems, by count
+    init_transl: torch.Tensor | None = None  # (B, 3) the translation at the start (image-only depth hold)
+
+    def __post_init__(self) -> None:
+        if self.empty_subset is None:
+            self.empty_subset = self.vertex_subset[:0].clone()
+        if self.vertex_ids is None:
+            self.vertex_ids = self.vertex_subset[self.vertex_index] if len(self.vertex_subset) else self.vertex_index
+
+
+    def repeated(self, count: int) -> FitProblem:
+        """Every person `count` times in a row (the shape Jacobian's perturbed copies), made once: the same
+        tensors on every step keep the body model's vertex-set caches valid."""
+        if count not in self._copies:
+            self._copies[count] = self.take(torch.arange(len(self.use_lidar), device=self.K.device
+                                                         ).repeat_interleave(count))
+        return self._copies[count]
+
+    def take(self, rows: torch.Tensor) -> FitProblem:
+        """The problem of the people `rows` (repeats allowed): the shape Jacobian's perturbed copies."""
+        shared = ("K", "vertex_subset", "empty_subset")
+        picked = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "_copies"}
+        for name, value in picked.items():
+            if name not in shared and value is not None:
+                picked[name] = value[rows]
+        return FitProblem(**picked)
+
+
+def posed_rows(model: BodyModel, args: tuple[torch.Tensor, ...], problem: FitProblem, with_vertices: bool
+               ) -> BodyOutput:
+    """The bodies of `args` with, as `vertices`, each person's own L_3D vertices (B, n, 3) (none without
+    `with_vertices`): a model that poses a vertex set per body does so directly, another poses the
+    batch's union and each person picks theirs."""
+    if not with_vertices:
+        return model(*args, problem.empty_subset)
+    if model.vertices_per_row:
+        return model(*args, problem.vertex_ids)
+    out = model(*args, problem.vertex_subset)
+    rows = torch.gather(out.vertices, 1, problem.vertex_index[..., None].expand(-1, -1, 3))
+    return BodyOutput(rows, out.joints, out.keypoints)
 
 
 @dataclass
@@ -65,6 +134,9 @@ class StageSpec:
     chamfer_weight: float  # λ_3D of this stage (0: no 3D term)
     priors: bool  # pose, bending, shape and occlusion priors
     shape_only_prior: bool = False  # stage 1: only L_β beside L_J
+    hold: bool = True  # with `priors`: L_θocc and the init-pose prior (False: nothing to hold, built-in init)
+    keypoint_depth_weight: float = 0.0  # weight of the limb-depth targets (`FitProblem.keypoint_depth`)
+    keypoint_depth_sigma: float = 0.1  # m, their Geman-McClure scale
 
 
 @dataclass
@@ -82,13 +154,13 @@ class _Translated:
     """Stand-in for the body model in a translation-only stage: every model is translation-equivariant
     (`transl` is added last), so the posed body is computed once and only shifted afterwards."""
 
-    def __init__(self, model: BodyModel, state: FitState, vertex_subset: torch.Tensor) -> None:
+    def __init__(self, model: BodyModel, state: FitState, problem: FitProblem) -> None:
         self.model = model
         self.transl0 = state.transl.detach().clone()
         with torch.no_grad():
-            self.base = model(state.shape, state.pose, state.root_orient, state.transl, vertex_subset)
+            self.base = posed_rows(model, state.body_args(model), problem, problem.vertex_index.shape[1] > 0)
 
-    def __call__(self, shape, pose, root_orient, transl, vertex_index=None) -> BodyOutput:
+    def __call__(self, shape, pose, root_orient, transl) -> BodyOutput:
         shift = (transl - self.transl0)[:, None]
         return BodyOutput(self.base.vertices + shift, self.base.joints + shift, self.base.keypoints + shift)
 
@@ -100,17 +172,25 @@ def stage_loss(
     """(B,) total loss of one stage. `body` replaces `model`'s forward (see `_Translated`)."""
     weights: LossWeights = profile.weights
     use_chamfer = stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
-    subset = problem.vertex_subset if use_chamfer else problem.vertex_subset[:0]
-    out = (body or model)(state.shape, state.pose, state.root_orient, state.transl, subset)
+    shape = model.shape_from_free(state.shape)
+    args = (shape, state.pose, state.root_orient, state.transl)
+    out = body(*args) if body is not None else posed_rows(model, args, problem, use_chamfer)
     projected = losses.project(out.keypoints, problem.K)
     loss = losses.reprojection_loss(
-        projected, problem.keypoints, problem.confidence, stage.sigma_px, align=stage.align
+        projected, problem.keypoints, problem.confidence, stage.sigma_px, align=stage.align,
+        scale=problem.pixel_scale,
     )
     if stage.priors or stage.shape_only_prior:
-        loss = loss + _w(weights.shape, profile) * model.shape_prior(state.shape)
+        loss = loss + _w(weights.shape, profile) * model.shape_prior(shape)
     if stage.priors:
         loss = loss + _w(weights.pose, profile) * model.pose_prior(state.pose)
         loss = loss + _w(weights.bend, profile) * model.bending_prior(state.pose)
+        if weights.neutral > 0:
+            loss = loss + _w(weights.neutral, profile) * (model.neutral_residuals(state.pose) ** 2).sum(-1)
+        if weights.upright > 0 and problem.up is not None:
+            loss = loss + _w(weights.upright, profile) * (losses.upright_residuals(
+                state.root_orient, problem.up) ** 2).sum(-1)
+    if stage.priors and stage.hold:
         loss = loss + _w(weights.occlusion, profile) * losses.occlusion_prior(
             state.pose, problem.init_pose, problem.occluded_joints
         )
@@ -118,9 +198,14 @@ def stage_loss(
             loss = loss + _w(weights.init_pose, profile) * losses.occlusion_prior(
                 state.pose, problem.init_pose, 1.0 - problem.occluded_joints
             )
+    if weights.image_depth > 0 and "transl" in stage.params and problem.init_transl is not None:
+        loss = loss + _w(weights.image_depth, profile) * (losses.depth_hold_residuals(
+            state.transl, problem.init_transl, problem.use_lidar) ** 2)
+    if stage.keypoint_depth_weight > 0 and problem.keypoint_depth is not None:
+        loss = loss + _w(stage.keypoint_depth_weight, profile) * losses.keypoint_depth_loss(
+            out.keypoints, problem.keypoint_depth, stage.keypoint_depth_sigma)
     if use_chamfer:
-        visible = torch.gather(out.vertices, 1, problem.vertex_index[..., None].expand(-1, -1, 3))
-        chamfer = losses.chamfer_loss(visible, problem.vertex_mask, problem.points, problem.point_mask,
+        chamfer = losses.chamfer_loss(out.vertices, problem.vertex_mask, problem.points, problem.point_mask,
                                       profile.chamfer_vertex_weight)
         loss = loss + _w(stage.chamfer_weight, profile) * chamfer * problem.use_lidar
     return loss
@@ -143,7 +228,9 @@ def run_stage(
     if stage.iterations == 0:
         with torch.no_grad():
             return 0, stage_loss(model, state, problem, stage, profile)
-    body = _Translated(model, state, problem.vertex_subset) if stage.params == ("transl",) else None
+    body = _Translated(model, state, problem) if stage.params == ("transl",) else None
+    if profile.optimizer == "lm":
+        return _run_lm(model, state, problem, stage, profile, diverged, body)
     tensors = [getattr(state, n) for n in stage.params]
     for t in tensors:
         t.requires_grad_(True)
@@ -193,6 +280,42 @@ def run_stage(
     return iterations, final
 
 
+def _run_lm(
+    model: BodyModel, state: FitState, problem: FitProblem, stage: StageSpec, profile: OptimizerProfile,
+    diverged: torch.Tensor, body: _Translated | None,
+) -> tuple[int, torch.Tensor]:
+    """`run_stage` with Levenberg-Marquardt steps (`fitting.solver`): a step is kept only where it lowers
+    the person's exact stage loss, so nobody ends worse than they started; a non-finite start freezes
+    the person (flagged diverged). Each person stops once its loss fell by less than `early_stop_rel_tol`
+    over the last `early_stop_patience` iterations, or once no step with a bearable damping lowers it."""
+    layout = solver.Layout.of(model, stage.params, state.pose.device)
+    with torch.no_grad():
+        cost = stage_loss(model, state, problem, stage, profile, body)
+    diverged |= ~torch.isfinite(cost)
+    active = ~diverged.clone()
+    damping = torch.full_like(cost, profile.lm_damping)
+    history = [cost]  # each iteration's loss, accepted steps or not
+    iterations = 0
+    for _ in range(stage.iterations):
+        if not active.any():
+            break
+        system = solver.normal_equations(model, state, problem, stage, profile, layout, body)
+        candidate = solver.apply_step(state, solver.damped_step(system, layout, damping), layout)
+        with torch.no_grad():
+            new_cost = stage_loss(model, candidate, problem, stage, profile, body)
+        better = active & torch.isfinite(new_cost) & (new_cost < cost)
+        state.copy_rows_from(candidate, better)
+        cost = torch.where(better, new_cost, cost)
+        damping = torch.where(better, damping / solver.DAMPING_DOWN, damping * solver.DAMPING_UP)
+        history.append(cost)
+        iterations += 1
+        if len(history) > profile.early_stop_patience:
+            before = history[-1 - profile.early_stop_patience]
+            active &= before - cost >= profile.early_stop_rel_tol * before.abs()
+        active &= damping < solver.DAMPING_MAX
+    return iterations, cost
+
+
 def stage_plan(profile: OptimizerProfile) -> list[StageSpec]:
     """The stages of the profile's scheme, with their terms (Eq. 2 or Eq. 11-14)."""
     w = profile.weights
@@ -204,8 +327,12 @@ def stage_plan(profile: OptimizerProfile) -> list[StageSpec]:
     n1, n2, n3 = profile.iterations
     align = profile.keypoint_alignment
     return [
-        StageSpec("scale", ("shape",), n1, align, w.sigma_px, 0.0, priors=False, shape_only_prior=True),
-        StageSpec("mesh", ("pose", "shape", "root_orient"), n2, align, w.sigma_px, w.chamfer, priors=True),
+        # with L_3D, stage 1 moves the body to its points while it scales it: the size the image sees is
+        # then measured at the depth the LiDAR sees, rather than at a depth the later stages must undo
+        StageSpec("scale", ("shape", "transl") if w.chamfer_scale > 0 else ("shape",), n1, align, w.sigma_px,
+                  w.chamfer_scale, priors=False, shape_only_prior=True),
+        StageSpec("mesh", ("pose", "shape", "root_orient") if profile.mesh_shape else ("pose", "root_orient"), n2,
+                  align, w.sigma_px, w.chamfer, priors=True),
         StageSpec("image", ("transl",), n3, None, w.sigma_px_final, w.chamfer_final, priors=False),
     ]
 
