@@ -55,7 +55,7 @@ from smplify3d_ros.runtime.transforms import (
     transform_msg_matrix,
 )
 
-CORE_PARAMETER_SECTIONS = ("fitting", "lidar", "people")  # core sections declared whole as ROS parameters
+CORE_PARAMETER_SECTIONS = ("fitting", "lidar", "people", "tracking")  # core sections declared whole as ROS parameters
 TOPIC_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")  # one token of a ROS 2 topic name (a REP-155 id)
 RCLPY_PARAMETERS = {"use_sim_time", "start_type_description_service"}  # declared by rclpy's Node itself
 

@@ -13,7 +13,7 @@ from smplify3d_ros.config import ConfigError, load_config, to_dict
 from smplify3d_ros.node import flatten, unflatten
 from smplify3d_ros.runtime.config import PARAMETER_RANGES, load_node_config, parameter_range
 
-CORE = ("fitting", "lidar", "people")
+CORE = ("fitting", "lidar", "people", "tracking")
 
 
 def _numeric_keys() -> dict[str, float | int]:

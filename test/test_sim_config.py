@@ -13,7 +13,7 @@ from smplify3d_ros.sim.config import SimConfig, default_sim_config
 def test_base_values_load():
     cfg = default_sim_config()
     assert set(cfg.lidar.sensors) == {"vlp16", "os1_32", "os1_64", "os1_128"}
-    assert set(cfg.sequence.scenarios) == {"walk", "crossing", "close", "far"}
+    assert set(cfg.sequence.scenarios) == {"walk", "crossing", "close", "far", "people"}
     assert cfg.lidar.sensors["vlp16"].channels == 16
 
 

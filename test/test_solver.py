@@ -13,7 +13,8 @@ from smplify3d_ros.eval.synthetic import default_intrinsics, make_person, pertur
 from smplify3d_ros.fitting import solver
 from smplify3d_ros.fitting.fitter import Fitter
 from smplify3d_ros.fitting.options import FitOptions
-from smplify3d_ros.fitting.stages import FitState, StageSpec, run_stage, stage_loss
+from smplify3d_ros.fitting.problem import FitState
+from smplify3d_ros.fitting.stages import StageSpec, run_stage, stage_loss
 
 
 def _random_body(model, B=2, seed=0):

@@ -26,7 +26,8 @@ from smplify3d_ros.fitting.icp import align_mesh_to_points
 from smplify3d_ros.fitting.limbs import limb_depth_targets
 from smplify3d_ros.fitting.losses import nearest_sq_distances, project
 from smplify3d_ros.fitting.options import FitOptions
-from smplify3d_ros.fitting.stages import FitProblem, FitState, StageSpec, optimize, run_stage
+from smplify3d_ros.fitting.problem import FitProblem, FitState
+from smplify3d_ros.fitting.stages import StageSpec, optimize, run_stage
 from smplify3d_ros.fitting.visibility import occluded_parts, visible_vertices
 from smplify3d_ros.geometry import move_body, transform
 from smplify3d_ros.keypoints import PART_NAMES

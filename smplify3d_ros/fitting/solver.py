@@ -31,6 +31,7 @@ import torch
 from smplify3d_ros.body.base import BodyModel
 from smplify3d_ros.fitting import losses
 from smplify3d_ros.fitting.config import OptimizerProfile
+from smplify3d_ros.fitting.problem import posed_rows
 
 SHAPE_STEP = 1e-2  # finite-difference step on the unconstrained shape coordinates (logits for Anny)
 DAMPING_UP, DAMPING_DOWN, DAMPING_MAX = 10.0, 3.0, 1e6  # μ after a failed / successful step; give up above
@@ -144,7 +145,6 @@ def _shape_jacobian(model: BodyModel, state, problem, use_chamfer: bool, vertice
     """Forward differences in the unconstrained shape coordinates: the keypoints' now, in one batched
     pass of keypoints only; the vertices' by row, when a residual block asks (a per-row model poses
     just those rows, a few dozen for a VLP-16, instead of the whole L_3D set six times)."""
-    from smplify3d_ros.fitting.stages import posed_rows
 
     B, S = state.shape.shape
     free = state.shape[:, None, :] + SHAPE_STEP * torch.eye(S, dtype=state.shape.dtype, device=state.shape.device)

@@ -236,6 +236,11 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "diagnostics.stale_after_s": (0.1, 3600), "diagnostics.rate_window_s": (0.5, 600),
     "diagnostics.rate_tolerance": (0, 1), "diagnostics.expected_hz.*": (0, 1000),
     "diagnostics.latency_window": (1, 100000),
+    # tracking
+    "tracking.gate_m": (0, _INF), "tracking.gate_speed_mps": (0, _INF), "tracking.iou_weight": (0, _INF),
+    "tracking.max_unseen_s": (0, _INF), "tracking.shape_frames": (1, _INF), "tracking.shape_rate": (0, 1),
+    "tracking.accel_sigma_mps2": (0, _INF), "tracking.position_sigma_m": (0, _INF),
+    "tracking.lost_reprojection": (0, _INF), "tracking.lost_chamfer_m": (0, _INF),
     # people
     "people.max_people": (1, 100), "people.min_keypoints": (1, 17), "people.keypoint_margin": (0, 10),
     # fitting
@@ -254,7 +259,18 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "fitting.init.body_height": (0, _INF), "fitting.init.torso_height": (0, _INF),
     "fitting.init.shoulder_width": (0, _INF), "fitting.init.hip_width": (0, _INF),
     "fitting.init.lidar_surface_offset": (0, _INF), "fitting.init.keypoint_conf": (0, 1),
-    "fitting.init.face_conf": (0, 1), "fitting.init.refine_iterations": (0, _INF),
+    "fitting.init.refine_iterations": (0, _INF), "fitting.init.ankle_height": (0, _INF),
+    "fitting.init.torso_box_pad": (0, _INF), "fitting.init.torso_depth_band": (0, _INF),
+    "fitting.init.lidar_heading_min_points": (2, _INF), "fitting.init.lidar_heading_min_spread": (0, _INF),
+    "fitting.init.lidar_heading_max_ratio": (0, 1), "fitting.init.heading_hypotheses": (1, _INF),
+    "fitting.init.hypothesis_merge_deg": (0, _INF), "fitting.init.hypothesis_iterations": (0, _INF),
+    "fitting.init.limb_keypoint_conf": (0, 1), "fitting.init.limb_radius": (0, _INF),
+    "fitting.init.limb_depth_band": (0, _INF), "fitting.init.limb_min_points": (1, _INF),
+    "fitting.init.limb_depth_percentile": (0, 100), "fitting.init.limb_surface_offset": (0, _INF),
+    "fitting.init.limb_depth_sigma": (0, _INF), "fitting.init.refine_chamfer": (0, _INF),
+    "fitting.init.refine_keypoint_depth": (0, _INF), "fitting.init.refine_max_vertices": (0, _INF),
+    "fitting.lidar_mismatch_m": (0, _INF), "fitting.profiles.*.lm_damping": (0, _INF),
+    "fitting.profiles.*.pixel_reference_px": (0, _INF),
     "fitting.init.refine_lr": (0, _INF), "fitting.min_points": (0, _INF), "fitting.min_points_depth": (1, _INF),
     "fitting.min_keypoints": (0, _INF), "fitting.num_threads": (0, _INF), "fitting.divergence_factor": (1, _INF),
     # lidar

@@ -144,7 +144,8 @@ class Tracker:
             if obs is not None:
                 track.bbox, track.surface = np.asarray(obs.bbox, np.float64), surface_point(obs)
             self._fold_shape(track, fit)
-            out.append(replace(fit, velocity=track.motion.velocity))
+            # a track's first fit has no velocity yet (the filter starts at rest, which would be a guess)
+            out.append(replace(fit, velocity=track.motion.velocity if track.frames > 1 else None))
         return out
 
     def _track_for(self, fit: BodyFit, obs: PersonObservation | None, stamp_ns: int) -> Track:
