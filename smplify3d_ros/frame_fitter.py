@@ -179,7 +179,8 @@ class FrameFitter:
         fits: dict[int, BodyFit] = {}
         if warm:
             warm_people = [replace(people[i], init=warm_start[i]) for i in warm]
-            for i, fit in zip(warm, self.warm_fitter.fit(warm_people, K, observed.lidar_origin, options),
+            warm_options = replace(options or FitOptions(), use_icp=self.config.tracking.warm_icp)
+            for i, fit in zip(warm, self.warm_fitter.fit(warm_people, K, observed.lidar_origin, warm_options),
                               strict=True):
                 if not self._lost(fit, people[i]):
                     fits[i] = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
@@ -190,7 +191,8 @@ class FrameFitter:
             fits.update(zip(cold, cold_fits, strict=True))
         lost = len(warm) - kept
         tracker.stats.fits.update({"warm": kept, "lost": lost, "cold": len(cold) - lost})
-        return tracker.update([fits[i] for i in range(len(people))], people, stamp)
+        pose = self.fitter.model.posed if isinstance(self.fitter, Fitter) else None  # stand-ins: unsmoothed
+        return tracker.update([fits[i] for i in range(len(people))], people, stamp, pose)
 
     def _lost(self, fit: BodyFit, obs: PersonObservation) -> bool:
         """A warm fit that does not explain its person any more: the cold start takes over."""

@@ -78,6 +78,7 @@ class Batch:
     keypoint_depth: np.ndarray | None = None  # (B, 17) limb-depth targets, camera z (NaN: none)
     problem: FitProblem | None = None  # the stages' observations (also what the fit quality is measured on)
     icp_ok: np.ndarray | None = None  # (B,) bool
+    vertices: np.ndarray | None = None  # (B, V, 3) the bodies of `state` when known (after ICP), else None
     final_loss: torch.Tensor | None = None  # (B,)
 
     @property
@@ -287,16 +288,17 @@ class Fitter:
                 if len(p.points) >= cfg.min_points_depth:
                     result = align_mesh_to_points(visible, p.points, translation_only)
                     if result.converged:
-                        self._move(batch.state, i, result.T)
+                        self._move(batch.state, i, result.T, verts)
                 continue
             result = align_mesh_to_points(visible, p.points, cfg.icp)
             batch.icp_ok[i] = result.converged
             if result.converged:
-                self._move(batch.state, i, result.T)
+                self._move(batch.state, i, result.T, verts)
             else:
                 batch.flags[i].add(FLAG_ICP_NOT_CONVERGED)
                 if np.linalg.norm(result.translation) <= cfg.icp.max_translation:
-                    self._move(batch.state, i, transform(t=result.translation))
+                    self._move(batch.state, i, transform(t=result.translation), verts)
+        batch.vertices = verts  # moved with their bodies: the stages' problem needs no new forward pass
 
     def _optimize(self, batch: Batch) -> None:
         """Step 3: the stages of the profile's scheme (Eq. 2, or Eq. 11-14)."""
@@ -361,8 +363,10 @@ class Fitter:
         with torch.no_grad():
             return self.model(*state.body_args(self.model))
 
-    def _move(self, state: FitState, i: int, T: np.ndarray) -> None:
-        """Move person i's body by the rigid transform T (camera frame)."""
+    def _move(self, state: FitState, i: int, T: np.ndarray, vertices: np.ndarray | None = None) -> None:
+        """Move person i's body by the rigid transform T (camera frame), and its row of `vertices` with it."""
+        if vertices is not None:
+            vertices[i] = (vertices[i] @ T[:3, :3].T + T[:3, 3]).astype(vertices.dtype)
         with torch.no_grad():
             shape = self.model.shape_from_free(state.shape[i : i + 1])
             center = self.model.rotation_center(shape, state.transl[i : i + 1])[0]
@@ -384,7 +388,9 @@ class Fitter:
         default the profile's `chamfer_max_vertices`), points, priors."""
         opt = self.config.optimizer
         max_vertices = opt.chamfer_max_vertices if max_vertices is None else max_vertices
-        masks = self._visible_masks(batch, self._forward(batch.state).vertices.cpu().numpy())
+        verts = batch.vertices if batch.vertices is not None else self._forward(batch.state).vertices.cpu().numpy()
+        batch.vertices = None  # the stages move the bodies next
+        masks = self._visible_masks(batch, verts)
         vertex_rows, point_rows = [], []
         for i, p in enumerate(batch.people):
             index = np.flatnonzero(masks[i])

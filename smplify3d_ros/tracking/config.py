@@ -18,8 +18,11 @@ class TrackingConfig:
     shape_rate: float  # after that, weight of each new frame's shape in the held shape (0: held)
     accel_sigma_mps2: float  # the constant-velocity filter's process noise: unmodelled acceleration
     position_sigma_m: float  # the filter's measurement noise: the fitted pelvis position
+    pose_smoothing: float  # weight of a new fit's rotations in the output (1: none; the rest: the last output's)
+    filter_position: bool  # the output's pelvis is the motion filter's estimate, not the fit's alone
     warm_start: bool  # fit tracked people from their predicted last fit with the short warm solve
     warm_profile: str  # the fitting.profiles entry of the warm solve
+    warm_icp: bool  # the rigid LiDAR alignment before a warm solve (the prediction is usually close already)
     lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of its box height) is lost
     lost_chamfer_m: float  # ... or whose mesh is farther than this from its points
 
@@ -28,6 +31,7 @@ class TrackingConfig:
         require(self.iou_weight >= 0, "iou_weight must be >= 0")
         require(self.max_unseen_s > 0, "max_unseen_s must be > 0")
         require(self.shape_frames >= 1, "shape_frames must be >= 1")
+        require(0.0 < self.pose_smoothing <= 1.0, "pose_smoothing must be in (0, 1]")
         require(0.0 <= self.shape_rate <= 1.0, "shape_rate must be in [0, 1]")
         require(self.accel_sigma_mps2 > 0 and self.position_sigma_m > 0,
                 "accel_sigma_mps2 and position_sigma_m must be > 0")

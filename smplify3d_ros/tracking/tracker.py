@@ -13,9 +13,12 @@ new track). Everything is in the camera frame, in which the fits are made.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from smplify3d_ros.geometry import move_body, transform
 from smplify3d_ros.keypoints import HIP_INDICES
@@ -25,6 +28,19 @@ from smplify3d_ros.tracking.motion import MotionFilter
 from smplify3d_ros.types import BodyFit, BodyParams, PersonObservation
 
 _NS = 1e-9
+PoseFunction = Callable[[list[BodyParams]], list[Any]]  # BodyModel.posed: params -> PosedBody geometry
+
+
+def _extrapolated(before: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """(N, 3) rotations one step on from `last` at the rate from `before` to `last`."""
+    rb, rl = Rotation.from_rotvec(np.asarray(before, np.float64)), Rotation.from_rotvec(np.asarray(last, np.float64))
+    return (rl * (rb.inv() * rl)).as_rotvec()
+
+
+def _slerp(a: np.ndarray, b: np.ndarray, weight: float) -> np.ndarray:
+    """(N, 3) axis-angle rotations `weight` of the way from `a` to `b` (on the rotation group)."""
+    ra, rb = Rotation.from_rotvec(np.asarray(a, np.float64)), Rotation.from_rotvec(np.asarray(b, np.float64))
+    return (ra * Rotation.from_rotvec(weight * (ra.inv() * rb).as_rotvec())).as_rotvec()
 
 
 def pelvis(fit: BodyFit) -> np.ndarray:
@@ -45,7 +61,9 @@ class Track:
     motion: MotionFilter
     bbox: np.ndarray  # (4,) the last keypoint box, px
     surface: np.ndarray | None  # (3,) the last points' median, camera frame
-    last_fit: BodyFit | None = None
+    last_fit: BodyFit | None = None  # the last fit as the fitter made it (the next warm start)
+    last_output: BodyFit | None = None  # ... as it was output (smoothed)
+    previous_output: BodyFit | None = None  # the output before that (the rotations' rate of change)
     frames: int = 0  # frames fitted
     shape_sum: np.ndarray | None = None
     shape_weight: float = 0.0
@@ -131,22 +149,51 @@ class Tracker:
         return track.shape_sum / max(track.shape_weight, 1e-12)
 
     # -- after the fit ---------------------------------------------------------------------------------
-    def update(self, fits: list[BodyFit], people: list[PersonObservation], stamp_ns: int) -> list[BodyFit]:
-        """Fold the frame's fits into their tracks; the fits back with their velocity (m/s, camera frame)."""
+    def update(self, fits: list[BodyFit], people: list[PersonObservation], stamp_ns: int,
+               pose: PoseFunction | None = None) -> list[BodyFit]:
+        """Fold the frame's fits into their tracks; the fits back with their velocity (m/s, camera frame),
+        and, with `pose` (BodyParams -> geometry, the body model's), smoothed (`_smoothed`)."""
         by_id = {p.person_id: p for p in people}
         out = []
         for fit in fits:
             obs = by_id.get(fit.person_id)
             track = self._track_for(fit, obs, stamp_ns)
-            dt = track.age_s(stamp_ns)
-            track.motion.update(pelvis(fit), dt)
-            track.last_stamp_ns, track.last_fit, track.frames = stamp_ns, fit, track.frames + 1
+            track.motion.update(pelvis(fit), track.age_s(stamp_ns))
+            track.last_fit = fit
+            if pose is not None and track.last_output is not None:
+                fit = self._smoothed(fit, track, pose)
+            track.previous_output, track.last_output = track.last_output, fit
+            track.last_stamp_ns, track.frames = stamp_ns, track.frames + 1
             if obs is not None:
                 track.bbox, track.surface = np.asarray(obs.bbox, np.float64), surface_point(obs)
             self._fold_shape(track, fit)
             # a track's first fit has no velocity yet (the filter starts at rest, which would be a guess)
             out.append(replace(fit, velocity=track.motion.velocity if track.frames > 1 else None))
         return out
+
+    def _smoothed(self, fit: BodyFit, track: Track, pose: PoseFunction) -> BodyFit:
+        """The fit moved towards the track: its joint and root rotations part of the way from the track's
+        prediction (the last output's rotations turned on at their last rate: an alpha-beta filter, which
+        does not lag behind a steady motion; `pose_smoothing` is the new fit's weight), its pelvis at the
+        motion filter's estimate."""
+        cfg = self.config
+        if cfg.pose_smoothing >= 1.0 and not cfg.filter_position:
+            return fit
+        params = fit.params.copy()
+        last = track.last_output.params
+        if cfg.pose_smoothing < 1.0 and last.pose.shape == params.pose.shape:
+            before = track.previous_output.params if track.previous_output is not None else last
+            joints, root = _extrapolated(before.pose, last.pose), _extrapolated(before.root_orient[None],
+                                                                                last.root_orient[None])
+            params.pose = _slerp(joints, params.pose, cfg.pose_smoothing)
+            params.root_orient = _slerp(root, params.root_orient[None], cfg.pose_smoothing)[0]
+        body = pose([params])[0]
+        shift = (track.motion.position if cfg.filter_position else pelvis(fit)) - \
+            body.keypoints3d[list(HIP_INDICES)].mean(axis=0)
+        params.transl = params.transl + shift
+        return replace(fit, params=params, vertices=(body.vertices + shift).astype(np.float32),
+                       keypoints3d=(body.keypoints3d + shift).astype(np.float32),
+                       joints=(body.joints + shift).astype(np.float32), rotation_center=body.rotation_center + shift)
 
     def _track_for(self, fit: BodyFit, obs: PersonObservation | None, stamp_ns: int) -> Track:
         track = self.tracks.get(fit.person_id)
