@@ -74,12 +74,14 @@ def undistorted_keypoints(frame: Frame) -> np.ndarray:
     return out
 
 
-def extract_frame_people(frame: Frame, config: ExtractionConfig) -> tuple[np.ndarray, ExtractionResult]:
-    """The frame's undistorted keypoints and each person's points cut out of its scan (camera frame)."""
+def extract_frame_people(frame: Frame, config: ExtractionConfig,
+                         expected_depth: np.ndarray | None = None) -> tuple[np.ndarray, ExtractionResult]:
+    """The frame's undistorted keypoints and each person's points cut out of its scan (camera frame);
+    `expected_depth`: optional (P, 2) depth and tolerance where each person should be (a track's)."""
     undistorted = undistorted_keypoints(frame)
     points_cam = transform_points(frame.points_lidar, frame.T_cam_lidar).astype(np.float32)
     pinhole = CameraModel(frame.camera.K, frame.camera.width, frame.camera.height)
-    return undistorted, extract_people(points_cam, undistorted, pinhole, config)
+    return undistorted, extract_people(points_cam, undistorted, pinhole, config, expected_depth)
 
 
 class FrameFitter:
@@ -135,7 +137,10 @@ class FrameFitter:
     def observations(self, frame: Frame) -> tuple[list[PersonObservation], np.ndarray]:
         """Undistort the keypoints, move the scan into the camera frame and cut out each person's points.
         Returns the observations and the LiDAR origin in the camera frame."""
-        undistorted, extraction = extract_frame_people(frame, self.config.lidar)
+        expected = None
+        if self.tracker is not None and len(frame.person_ids) == len(frame.keypoints):
+            expected = self.tracker.expected_depth(frame.person_ids, frame.stamp_ns)
+        undistorted, extraction = extract_frame_people(frame, self.config.lidar, expected)
         plane = extraction.ground
         # the initializer stands people on the ground; a fallback height band is an assumption, not a plane
         ground = np.array([*plane.normal, plane.offset], dtype=np.float64) if plane.fitted else None

@@ -383,3 +383,20 @@ def test_camera_geometry_of_the_test_rig():
     """The rig itself: the camera sits 0.40 m above the floor, looking forward."""
     floor_below_camera = transform_points(np.array([[3.0, 0.0, -LIDAR_HEIGHT]]), t_cam_lidar())[0]
     assert math.isclose(floor_below_camera[1], 0.40) and math.isclose(floor_below_camera[2], 2.9)
+
+
+def test_an_expected_depth_keeps_a_person_off_clusters_outside_it():
+    """A track's expectation (depth, tolerance): the person's own cluster inside it is kept, and a
+    person expected elsewhere takes no cluster rather than the nearest thing in their box."""
+    scene = Scene().ground().box((7.0, -6, 0), (7.3, 6, 3)).person(6.0, 0.3)
+    points_world, truth = scene.scan(vlp16_rays())
+    points_cam = transform_points(points_world, t_cam_lidar())
+    kps = scene.keypoints()
+    free = extract_people(points_cam, kps, CAMERA, CONFIG)
+    near = extract_people(points_cam, kps, CAMERA, CONFIG, expected_depth=np.array([[5.8, 1.0]]))
+    unknown = extract_people(points_cam, kps, CAMERA, CONFIG, expected_depth=np.full((1, 2), np.nan))
+    elsewhere = extract_people(points_cam, kps, CAMERA, CONFIG, expected_depth=np.array([[9.0, 1.0]]))
+    assert free.people[0].num_points >= 10
+    np.testing.assert_array_equal(near.people[0].indices, free.people[0].indices)
+    np.testing.assert_array_equal(unknown.people[0].indices, free.people[0].indices)
+    assert elsewhere.people[0].num_points == 0

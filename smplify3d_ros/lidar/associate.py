@@ -32,12 +32,14 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
     (dark clothes, out of range).
 A pair qualifies with a positive score, isolation >= `min_isolation` and a plausible skeleton at the
 cluster's depth (the largest keypoint distance, scaled by the cluster's median depth, at most
-`max_person_extent_m`: rejects background far behind). Pairs are taken greedily by score; each person
-gets one main cluster, and a cluster that is already someone's main is shared only when enough of the
-second person's mask points on it are exclusive (`share_min_exclusive`): two people touching in 3D
-form one cluster, yet each has their own region of it. Further clusters that are nobody's main and
-qualify but for the score join: those within `depth_tolerance_m` of the main cluster's depth (an arm
-or the legs split off by a gap or an occluder), then, transitively, those within
+`max_person_extent_m`: rejects background far behind) and, for a person whose depth is expected (a
+track's prediction), a cluster depth within that expectation's tolerance: a tracked person half hidden
+behind another keeps their own few points rather than the wall seen past their shoulder. Pairs are taken
+greedily by score; each person gets one main cluster, and a cluster that is already someone's main is
+shared only when enough of the second person's mask points on it are exclusive (`share_min_exclusive`):
+two people touching in 3D form one cluster, yet each has their own region of it. Further clusters that
+are nobody's main and qualify but for the score join: those within `depth_tolerance_m` of the main
+cluster's depth (an arm or the legs split off by a gap or an occluder), then, transitively, those within
 `body_depth_window_m` in depth that come within `secondary_link_m` of a joined one (knees or arms in
 front of the torso, split off at the body's own depth steps).
 
@@ -212,7 +214,7 @@ def _isolation(fraction_in: np.ndarray, uniform_fraction: np.ndarray) -> np.ndar
 def _main_clusters(
     counts: dict[str, np.ndarray], coverage: np.ndarray, contradicted: np.ndarray,
     mask_cover: np.ndarray, box_fraction: np.ndarray, depth: np.ndarray, extent: np.ndarray,
-    config: ExtractionConfig,
+    config: ExtractionConfig, expected_depth: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(P,) main cluster per person (-1: none) and (P, C) bool clusters that may be part of a body.
 
@@ -220,7 +222,8 @@ def _main_clusters(
     "exclusive"; coverage: (P, C) weighted count of body parts covered; contradicted: (P, C) parts
     whose core shows more of something behind the cluster than of the cluster; mask_cover: (P, C)
     fraction of the bbox the mask covers at the cluster's depth; box_fraction: (P,) the bbox's share
-    of bbox + context; depth: (P, C) median depth of the mask points; extent: (P,) skeleton size.
+    of bbox + context; depth: (P, C) median depth of the mask points; extent: (P,) skeleton size;
+    expected_depth: optional (P, 2) expected depth and tolerance per person (NaN: none).
     """
     in_box, in_mask, exclusive = counts["in_box"], counts["in_mask"], counts["exclusive"]
     n_people, n_clusters = in_mask.shape
@@ -230,6 +233,9 @@ def _main_clusters(
     score = (coverage - contradicted) * isolation
     with np.errstate(invalid="ignore"):
         plausible = extent[:, None] * depth <= config.max_person_extent_m
+        if expected_depth is not None:
+            expected, tolerance = expected_depth[:, :1], expected_depth[:, 1:]
+            plausible &= ~(np.abs(depth - expected) > tolerance)  # NaN expectation: no constraint
         body_like = (in_mask > 0) & plausible & (isolation >= config.min_isolation)
     main = np.full(n_people, -1)
     owners = np.zeros(n_clusters, dtype=np.int64)
@@ -311,12 +317,14 @@ def _geometry(uv: np.ndarray, z: np.ndarray, skeletons: list[Skeleton | None], c
 def associate(
     points: np.ndarray, uv: np.ndarray, coords: np.ndarray, clusters: np.ndarray,
     skeletons: list[Skeleton | None], camera: CameraModel, config: ExtractionConfig,
+    expected_depth: np.ndarray | None = None,
 ) -> np.ndarray:
     """(M,) int64 person index of each candidate point (-1: nobody).
 
     points: (M, 3) camera-frame candidates (ground removed); uv: (M, 2) their undistorted pixels;
     coords: (M, 3) their clustering-space coordinates (`cluster.scaled_coordinates`); clusters: (M,)
-    cluster labels 0..C-1; skeletons: one per person, None for people without one.
+    cluster labels 0..C-1; skeletons: one per person, None for people without one; expected_depth:
+    optional (P, 2) depth (m) where each person is expected and its tolerance (NaN rows: anywhere).
     """
     owner = np.full(len(points), -1, dtype=np.int64)
     if len(points) == 0 or len(skeletons) == 0:
@@ -324,7 +332,7 @@ def associate(
     z = points[:, 2].astype(np.float64)
     g = _geometry(uv, z, skeletons, camera, config)
     mask = g.dist <= config.mask_radius_m
-    main, body_like, depth = _score_clusters(g, mask, z, clusters, skeletons, camera, config)
+    main, body_like, depth = _score_clusters(g, mask, z, clusters, skeletons, camera, config, expected_depth)
     chosen, reference = _body_clusters(main, body_like, depth, g.box, coords, clusters, config)
     with np.errstate(invalid="ignore"):
         in_window = np.abs(z[None, :] - reference[:, None]) <= config.body_depth_window_m
@@ -338,7 +346,7 @@ def associate(
 
 def _score_clusters(
     g: _Geometry, mask: np.ndarray, z: np.ndarray, clusters: np.ndarray, skeletons: list[Skeleton | None],
-    camera: CameraModel, config: ExtractionConfig,
+    camera: CameraModel, config: ExtractionConfig, expected_depth: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each person's main cluster (-1: none), which clusters look like a body, and each (person, cluster)
     pair's median depth."""
@@ -377,7 +385,8 @@ def _score_clusters(
     counts = {"in_box": count(g.box), "in_context": count(g.context), "in_mask": count(mask),
               "exclusive": count(exclusive)}
     main, body_like = _main_clusters(
-        counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent, config
+        counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent, config,
+        None if expected_depth is None else np.asarray(expected_depth, np.float64).reshape(n_people, 2),
     )
     return main, body_like, depth
 

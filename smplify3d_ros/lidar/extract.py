@@ -51,12 +51,15 @@ class ExtractionResult:
 
 
 def extract_people(
-    points_cam: np.ndarray, keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig
+    points_cam: np.ndarray, keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig,
+    expected_depth: np.ndarray | None = None,
 ) -> ExtractionResult:
     """Each person's points in a full scan.
 
     points_cam: (N, 3) float32 scan in the camera optical frame (x right, y down, z forward), m.
     keypoints: (P, 17, 3) COCO-17 undistorted u, v (px) and score, one set per person.
+    expected_depth: optional (P, 2) depth (m) where each person is expected and its tolerance (m), e.g.
+    a track's prediction; a person's main cluster must lie within it (NaN rows: anywhere).
     """
     points = np.asarray(points_cam, dtype=np.float32).reshape(-1, 3)
     keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 17, 3)
@@ -91,7 +94,7 @@ def extract_people(
     # 4. Clusters; 5 and 6. Association, one owner per point.
     coords = scaled_coordinates(points[candidates], ground, config)
     clusters = euclidean_clusters(coords, config)
-    owner = associate(points[candidates], cand_uv, coords, clusters, skeletons, camera, config)
+    owner = associate(points[candidates], cand_uv, coords, clusters, skeletons, camera, config, expected_depth)
     labels[candidates] = owner.astype(np.int32)
 
     people = []

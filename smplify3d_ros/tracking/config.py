@@ -12,6 +12,7 @@ class TrackingConfig:
     enabled: bool  # track people across frames (False: every frame fitted from scratch)
     gate_m: float  # largest distance between a track's predicted pelvis and an anonymous detection's
     gate_speed_mps: float  # the gate grows by this speed times the time since the track was seen
+    extraction_gate_m: float  # a detector-tracked person's points: within this depth of where the track expects them
     iou_weight: float  # weight of (1 - 2D box overlap) in the association cost, in metres
     max_unseen_s: float  # a track not seen for this long ends; an id that returns then starts fresh
     shape_frames: int  # frames whose shapes are averaged (weighted by their LiDAR points), then held
@@ -28,6 +29,7 @@ class TrackingConfig:
 
     def __post_init__(self) -> None:
         require(self.gate_m > 0 and self.gate_speed_mps >= 0, "gate_m must be > 0, gate_speed_mps >= 0")
+        require(self.extraction_gate_m >= 0, "extraction_gate_m must be >= 0 (0: no gate)")
         require(self.iou_weight >= 0, "iou_weight must be >= 0")
         require(self.max_unseen_s > 0, "max_unseen_s must be > 0")
         require(self.shape_frames >= 1, "shape_frames must be >= 1")

@@ -139,6 +139,25 @@ class Tracker:
         params.root_orient, params.transl, params.shape = root, transl, shape.copy()
         return params
 
+    def expected_depth(self, person_ids: np.ndarray, stamp_ns: int) -> np.ndarray:
+        """(P, 2) where the LiDAR should see each detector-tracked person at `stamp_ns`: the depth of their
+        last points' median moved by the motion filter's prediction, and a tolerance of `extraction_gate_m`
+        grown by `gate_speed_mps` per second unseen; NaN rows for anonymous people, tracks without points
+        last time, and with the gate off (`extraction_gate_m` 0)."""
+        out = np.full((len(person_ids), 2), np.nan)
+        if self.config.extraction_gate_m <= 0:
+            return out
+        for i, person_id in enumerate(np.asarray(person_ids).tolist()):
+            track = self.tracks.get(int(person_id)) if person_id >= 0 else None
+            if track is None or not track.from_detector or track.surface is None or track.last_fit is None:
+                continue
+            age = track.age_s(stamp_ns)
+            if age > self.config.max_unseen_s:
+                continue
+            shift = track.motion.predicted(age) - track.motion.position
+            out[i] = track.surface[2] + shift[2], self.config.extraction_gate_m + self.config.gate_speed_mps * age
+        return out
+
     def held_shape(self, person_id: int) -> np.ndarray | None:
         """The shape a track holds (None while it is still being estimated)."""
         track = self.tracks.get(person_id)
