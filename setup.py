@@ -26,6 +26,7 @@ setup(
         (SHARE, ["package.xml"]),
         (f"{SHARE}/params", sorted(glob("params/*.yaml"))),
         (f"{SHARE}/params/base", sorted(glob("params/base/*.yaml"))),
+        (f"{SHARE}/params/nav2", sorted(glob("params/nav2/*.yaml"))),  # costmap example (docs/node.md, "Nav2")
         (f"{SHARE}/launch", sorted(glob("launch/*.launch.py"))),
         (f"{SHARE}/rviz", sorted(glob("rviz/*.rviz"))),
     ],

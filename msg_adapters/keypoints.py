@@ -1,6 +1,6 @@
 """The keypoint input encoding (a PointCloud2) <-> COCO-17 keypoint arrays, for several detector formats.
 
-Encoding (see ARCHITECTURE.md): an unorganized PointCloud2 with one point per (person, joint), fields
+Encoding (docs/encodings.md, "Keypoints"): an unorganized PointCloud2 with one point per (person, joint), fields
 `u`, `v` (float32, pixels), `score` (float32, [0, 1]), `person` (int32 track id, -1 when the detector
 has none), `joint` (uint16, the joint's index in the detector's keypoint format). An empty cloud means
 "no person in this image". Readers also accept any integer type for `person` / `joint` and any float

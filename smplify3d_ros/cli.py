@@ -3,9 +3,12 @@
     smplify3d setup                 build the body model's cache once (about a minute on first use)
     smplify3d replay IN [-o OUT]    fit every frame of a bag, write an output bag (no ROS runtime needed)
     smplify3d make-bags             regenerate the synthetic bags in bags/
-    smplify3d bench                 accuracy benchmark on simulated scenes
+    smplify3d bench                 accuracy benchmark on simulated scenes (--sequences: tracking)
     smplify3d bench-speed           fit time and accuracy of the optimizer profiles
     smplify3d bench-extract         precision/recall of the LiDAR person extraction
+    smplify3d bench-live BAG        the node live on a bag at its recorded rate: output rate, latency
+    smplify3d tune                  tune a profile on the tuning seeds
+    smplify3d smpl-to-npz MODEL     convert an SMPL .pkl to .npz
 
 Errors are one line on stderr naming the file, key or topic at fault, with exit code 2 when the input,
 parameters or output are unusable and 3 for anything unexpected (a bug); `smplify3d --debug CMD ...`

@@ -34,6 +34,7 @@ from smplify3d_ros.tracking.tracker import Tracker
 from smplify3d_ros.types import (
     FLAG_DIVERGED,
     FLAG_EXTERNAL_INIT,
+    FLAG_IMAGE_ONLY,
     FLAG_WARM_START,
     BodyFit,
     CameraModel,
@@ -179,7 +180,8 @@ class FrameFitter:
         the tracks updated with the result (velocity onto each fit)."""
         tracker, stamp, K = self.tracker, observed.frame.stamp_ns, observed.frame.camera.K
         people = observed.observations
-        warm_start = {i: tracker.warm_start(p.person_id, stamp) for i, p in enumerate(people) if p.init is None}
+        warm_start = {i: tracker.warm_start(p.person_id, stamp) for i, p in enumerate(people)
+                      if p.init is None and not self._regained(p)}
         warm = [i for i, params in warm_start.items() if params is not None]
         fits: dict[int, BodyFit] = {}
         if warm:
@@ -198,6 +200,14 @@ class FrameFitter:
         tracker.stats.fits.update({"warm": kept, "lost": lost, "cold": len(cold) - lost})
         pose = self.fitter.model.posed if isinstance(self.fitter, Fitter) else None  # stand-ins: unsmoothed
         return tracker.update([fits[i] for i in range(len(people))], people, stamp, pose)
+
+    def _regained(self, obs: PersonObservation) -> bool:
+        """A tracked person fitted from the image alone last time who has LiDAR points again: their last
+        fit's depth and pose were guesses the points may contradict by metres, which a short warm solve
+        walks off only over many frames, so they get the cold start."""
+        track = self.tracker.track(obs.person_id) if self.tracker is not None else None
+        return (track is not None and track.last_fit is not None and FLAG_IMAGE_ONLY in track.last_fit.flags
+                and len(obs.points) >= self.config.fitting.min_points)
 
     def _lost(self, fit: BodyFit, obs: PersonObservation) -> bool:
         """A warm fit that does not explain its person any more: the cold start takes over."""

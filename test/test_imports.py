@@ -1,5 +1,5 @@
 """The package's import graph: no cycle (function-level imports included), a core (body/, fitting/,
-lidar/) that imports no ROS, message, driver, simulator or evaluation module, and a configuration that
+lidar/, tracking/) that imports no ROS, message, driver, simulator or evaluation module, and a configuration that
 loads none of them."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGES = ("smplify3d_ros", "msg_adapters")
-CORE = ("smplify3d_ros.body", "smplify3d_ros.fitting", "smplify3d_ros.lidar")
+CORE = ("smplify3d_ros.body", "smplify3d_ros.fitting", "smplify3d_ros.lidar", "smplify3d_ros.tracking")
 NOT_IN_CORE = ("rclpy", "msg_adapters", "smplify3d_ros.sim", "smplify3d_ros.eval", "smplify3d_ros.runtime",
                "smplify3d_ros.replay", "smplify3d_ros.node", "launch", "tf2_ros", "message_filters")
 

@@ -183,6 +183,7 @@ def test_wheel_holds_packages_entry_points_and_share_files(wheel):
                 f"{share}launch/smplify3d.launch.py", f"{share}rviz/smplify3d.rviz"]
     expected += [f"{share}params/{p.name}" for p in (REPO / "params").glob("*.yaml")]
     expected += [f"{share}params/base/{p.name}" for p in (REPO / "params" / "base").glob("*.yaml")]
+    expected += [f"{share}params/nav2/{p.name}" for p in (REPO / "params" / "nav2").glob("*.yaml")]
     missing = [e for e in expected if e not in names]
     assert not missing, missing
     (entry_points,) = [n for n in names if n.endswith(".dist-info/entry_points.txt")]

@@ -127,3 +127,31 @@ def test_a_tracked_person_half_hidden_keeps_their_own_points():
     summary = replay_bag("bags/crossing", max_frames=12, progress=False)
     assert summary.people_evaluated >= 34
     assert summary.mpjpe_mm < 100.0, summary.mpjpe_mm
+
+
+def test_a_person_fitted_from_the_image_who_regains_points_gets_the_cold_start():
+    """A warm start from an image-only fit carries a guessed depth: when the points come back, the
+    cold start (which measures the depth from them) fits the person, and warm starts follow."""
+    from types import SimpleNamespace
+
+    from node_support import StubFitter
+
+    from smplify3d_ros.frame_fitter import FrameFits, FrameFitter
+    from smplify3d_ros.types import FLAG_IMAGE_ONLY
+
+    class ImageOnlyWithoutPoints(StubFitter):
+        def fit(self, people, K, origin, options=None):
+            fits = super().fit(people, K, origin, options)
+            return [dataclasses.replace(f, flags={FLAG_IMAGE_ONLY} if len(p.points) == 0 else set())
+                    for f, p in zip(fits, people, strict=True)]
+
+    cold, warm = ImageOnlyWithoutPoints(), ImageOnlyWithoutPoints()
+    core = load_config()
+    path = FrameFitter(core, fitter=cold, tracker=Tracker(core.tracking), warm_fitter=warm)
+    used = []
+    for k, n_points in enumerate((0, 0, 50, 50)):
+        frame = SimpleNamespace(stamp_ns=k * NS, camera=SimpleNamespace(K=np.eye(3)))
+        people = path.tracker.assign([observation(3, 0.1 * k, n_points=n_points)], frame.stamp_ns)
+        path.fit_observed(FrameFits(frame, people, [], np.zeros(3)))
+        used.append("cold" if len(cold.calls) > sum(u == "cold" for u in used) else "warm")
+    assert used == ["cold", "warm", "cold", "warm"]

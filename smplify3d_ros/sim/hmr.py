@@ -16,7 +16,7 @@ What an image regressor gets wrong, and how each error is produced from the grou
 
 `smplify3d_ros.eval.hmr_statistics` measures the errors this model produces over random people at 3DPW-like distances;
 the defaults give about 60 to 80 mm root-aligned and 300 to 600 mm unaligned MPJPE (CLIFF on 3DPW:
-about 69 / 479 mm, METHOD.md).
+about 69 / 479 mm, as reported by CLIFF's authors).
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ disc (densest at its centre and rim), stretched to the field of view's ellipse a
 angle per line. Each frame starts at a random moment of the prisms' turn. `random`: directions uniform in
 solid angle over the field of view's rectangle, new every frame. The `ring` field carries the line.
 
-Noise (as CARLA's LiDAR, METHOD.md): Gaussian range noise along the ray, random drop-out of returns;
+Noise (as CARLA's simulated LiDAR models it): Gaussian range noise along the ray, random drop-out of returns;
 plus beam pointing noise: the beam travels along a perturbed direction but the return is reported along
 the nominal one, which moves points across the ray by about range x sigma.
 
