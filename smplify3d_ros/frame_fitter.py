@@ -37,6 +37,7 @@ from smplify3d_ros.types import (
     FLAG_IMAGE_ONLY,
     FLAG_WARM_START,
     BodyFit,
+    BodyParams,
     CameraModel,
     Frame,
     PersonObservation,
@@ -185,7 +186,8 @@ class FrameFitter:
         warm = [i for i, params in warm_start.items() if params is not None]
         fits: dict[int, BodyFit] = {}
         if warm:
-            warm_people = [replace(people[i], init=warm_start[i]) for i in warm]
+            warm_people = [replace(people[i], init=warm_start[i],
+                                   init_vertices=self._moved_mesh(people[i], warm_start[i])) for i in warm]
             warm_options = replace(options or FitOptions(), use_icp=self.config.tracking.warm_icp)
             for i, fit in zip(warm, self.warm_fitter.fit(warm_people, K, observed.lidar_origin, warm_options),
                               strict=True):
@@ -200,6 +202,16 @@ class FrameFitter:
         tracker.stats.fits.update({"warm": kept, "lost": lost, "cold": len(cold) - lost})
         pose = self.fitter.model.posed if isinstance(self.fitter, Fitter) else None  # stand-ins: unsmoothed
         return tracker.update([fits[i] for i in range(len(people))], people, stamp, pose)
+
+    def _moved_mesh(self, obs: PersonObservation, start: BodyParams) -> np.ndarray | None:
+        """The track's last fitted mesh where the warm start put the body (`Tracker.warm_start` only
+        translates it; None if it turned it). The warm start's held shape may differ from the last fit's by
+        one step of the shape averaging, millimetres of surface, which the rigid alignment does not need."""
+        last = self.tracker.track(obs.person_id).last_fit
+        if last.vertices is None or np.shape(last.params.root_orient) != np.shape(start.root_orient) \
+                or not np.allclose(last.params.root_orient, start.root_orient):
+            return None
+        return (last.vertices + (start.transl - last.params.transl)).astype(np.float32)
 
     def _regained(self, obs: PersonObservation) -> bool:
         """A tracked person fitted from the image alone last time who has LiDAR points again: their last

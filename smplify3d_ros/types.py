@@ -76,6 +76,9 @@ class PersonObservation:
     # (4,) float64 the frame's ground plane n·p + d = 0 in the camera frame (n unit, pointing up; d the
     # camera's height above it), None when no plane was fitted to the scan
     ground: np.ndarray | None = None
+    # (V, 3) float32 the mesh of `init` when it is already known (a warm start: the last fit's, moved with
+    # it), which spares the fitter the forward pass that ICP would otherwise need; None: computed
+    init_vertices: np.ndarray | None = None
 
 
 @dataclass

@@ -277,7 +277,11 @@ class Fitter:
         batch.icp_ok = np.ones(batch.size, dtype=bool)
         if not (batch.options.use_icp and cfg.icp.enabled):
             return
-        verts = self._forward(batch.state).vertices.cpu().numpy()
+        known = [p.init_vertices for p in batch.people]
+        if not batch.builtin.any() and all(v is not None for v in known):
+            verts = np.stack(known).astype(np.float32)  # the initial estimates' meshes came with them
+        else:
+            verts = self._forward(batch.state).vertices.cpu().numpy()
         masks = self._visible_masks(batch, verts)
         translation_only = dataclasses.replace(cfg.icp, estimate_rotation=False)
         for i, p in enumerate(batch.people):

@@ -40,8 +40,10 @@ def _inverse(T: np.ndarray) -> np.ndarray:
     return inv
 
 
-def _inlier_fraction(moved_vertices: np.ndarray, points: np.ndarray, config: IcpConfig) -> float:
-    dist, _ = cKDTree(moved_vertices).query(points, k=1, distance_upper_bound=2 * config.kernel)
+def _inlier_fraction(tree: cKDTree, points: np.ndarray, config: IcpConfig) -> float:
+    """Fraction of `points` within 2 kernels of the vertices in `tree` (points given in the vertices'
+    frame: a rigid move of the mesh is the inverse move of the points, distances are the same)."""
+    dist, _ = tree.query(points, k=1, distance_upper_bound=2 * config.kernel)
     return float(np.isfinite(dist).mean())
 
 
@@ -55,11 +57,11 @@ def _prealign(tree: cKDTree, vertices: np.ndarray, points: np.ndarray, start: np
     return shift
 
 
-def _translation_result(vertices, points, shift, origin, config: IcpConfig) -> IcpResult:
+def _translation_result(tree: cKDTree, points, shift, config: IcpConfig) -> IcpResult:
     """The robust translation-only alignment as the result (`estimate_rotation: false`)."""
     T = np.eye(4)
     T[:3, 3] = -shift
-    inliers = _inlier_fraction(vertices - shift, points, config)
+    inliers = _inlier_fraction(tree, points + shift, config)
     converged = inliers >= config.min_inlier_fraction and np.linalg.norm(shift) <= config.max_translation
     return IcpResult(T, bool(converged), inliers, -shift)
 
@@ -81,10 +83,10 @@ def align_mesh_to_points(vertices: np.ndarray, points: np.ndarray, config: IcpCo
     shift = max(
         (_prealign(tree, vertices, points, start, config) for start in (_bbox_center(vertices) - _bbox_center(points),
                                                                          np.zeros(3))),
-        key=lambda s: _inlier_fraction(vertices - s, points, config),
+        key=lambda s: _inlier_fraction(tree, points + s, config),
     )
     if not config.estimate_rotation:
-        return _translation_result(vertices, points, shift, origin, config)
+        return _translation_result(tree, points, shift, config)
     mesh_map = VoxelHashMap(config.voxel_size, max_distance=1e6, max_points_per_voxel=config.max_points_per_voxel)
     mesh_map.add_points(vertices)
     # points -> mesh; start from the bbox centre offset (mesh centre minus point centre)
@@ -99,8 +101,7 @@ def align_mesh_to_points(vertices: np.ndarray, points: np.ndarray, config: IcpCo
     )
     step = np.linalg.norm(one_more[:3, 3] - T_pm[:3, 3]) + np.linalg.norm(one_more[:3, :3] - T_pm[:3, :3])
     T_local = _inverse(T_pm)
-    moved = vertices @ T_local[:3, :3].T + T_local[:3, 3]
-    inliers = _inlier_fraction(moved, points, config)
+    inliers = _inlier_fraction(tree, points @ T_pm[:3, :3].T + T_pm[:3, 3], config)  # = points to moved mesh
     converged = bool(
         step < 10 * config.convergence_criterion
         and inliers >= config.min_inlier_fraction
