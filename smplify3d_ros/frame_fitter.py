@@ -177,13 +177,17 @@ class FrameFitter:
         return replace(observed, fits=fits, latency={**observed.latency, "fit": time.perf_counter() - t})
 
     def _fit_tracked(self, observed: FrameFits, options: FitOptions | None) -> list[BodyFit]:
-        """Warm fits for tracked people, cold ones for the others and for warm fits that lost their person;
-        the tracks updated with the result (velocity onto each fit)."""
+        """Warm fits for tracked people, cold ones for the others, for warm fits that lost their person and,
+        every `tracking.refresh_frames` frames of a track, for the tracked person with their warm start as
+        one more hypothesis of the cold start (a warm solve cannot leave a wrong minimum, e.g. a heading
+        it inherited, and the fits' residuals do not tell: the objective picks); the tracks updated with
+        the result (velocity onto each fit)."""
         tracker, stamp, K = self.tracker, observed.frame.stamp_ns, observed.frame.camera.K
         people = observed.observations
         warm_start = {i: tracker.warm_start(p.person_id, stamp) for i, p in enumerate(people)
                       if p.init is None and not self._regained(p)}
-        warm = [i for i, params in warm_start.items() if params is not None]
+        refresh = {i for i, params in warm_start.items() if params is not None and self._refresh_due(people[i])}
+        warm = [i for i, params in warm_start.items() if params is not None and i not in refresh]
         fits: dict[int, BodyFit] = {}
         if warm:
             warm_people = [replace(people[i], init=warm_start[i],
@@ -196,10 +200,13 @@ class FrameFitter:
         kept = len(fits)
         cold = [i for i in range(len(people)) if i not in fits]
         if cold:
-            cold_fits = self.fitter.fit([people[i] for i in cold], K, observed.lidar_origin, options)
+            cold_people = [replace(people[i], hypothesis=self._as_hypothesis(people[i], warm_start[i], stamp))
+                           if i in refresh else people[i] for i in cold]
+            cold_fits = self.fitter.fit(cold_people, K, observed.lidar_origin, options)
             fits.update(zip(cold, cold_fits, strict=True))
         lost = len(warm) - kept
-        tracker.stats.fits.update({"warm": kept, "lost": lost, "cold": len(cold) - lost})
+        tracker.stats.fits.update({"warm": kept, "lost": lost, "refresh": len(refresh),
+                                   "cold": len(cold) - lost - len(refresh)})
         pose = self.fitter.model.posed if isinstance(self.fitter, Fitter) else None  # stand-ins: unsmoothed
         return tracker.update([fits[i] for i in range(len(people))], people, stamp, pose)
 
@@ -212,6 +219,18 @@ class FrameFitter:
                 or not np.allclose(last.params.root_orient, start.root_orient):
             return None
         return (last.vertices + (start.transl - last.params.transl)).astype(np.float32)
+
+    def _as_hypothesis(self, obs: PersonObservation, start: BodyParams, stamp_ns: int) -> BodyParams:
+        """The warm start in the built-in hypotheses' form: `transl` is where the hip midpoint goes (the
+        motion filter's prediction, where `Tracker.warm_start` put it)."""
+        track = self.tracker.track(obs.person_id)
+        hypothesis = start.copy()
+        hypothesis.transl = track.motion.predicted(track.age_s(stamp_ns)).copy()
+        return hypothesis
+
+    def _refresh_due(self, obs: PersonObservation) -> bool:
+        every = self.config.tracking.refresh_frames
+        return every > 0 and self.tracker.track(obs.person_id).frames % every == 0
 
     def _regained(self, obs: PersonObservation) -> bool:
         """A tracked person fitted from the image alone last time who has LiDAR points again: their last

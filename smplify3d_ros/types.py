@@ -79,6 +79,9 @@ class PersonObservation:
     # (V, 3) float32 the mesh of `init` when it is already known (a warm start: the last fit's, moved with
     # it), which spares the fitter the forward pass that ICP would otherwise need; None: computed
     init_vertices: np.ndarray | None = None
+    # one more start that the built-in initializer weighs against its own heading hypotheses by the same
+    # objective (a track's last fit, moved to the new stamp); its `transl` is the hip midpoint, as theirs
+    hypothesis: BodyParams | None = None
 
 
 @dataclass

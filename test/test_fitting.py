@@ -151,3 +151,22 @@ def test_a_fit_that_missed_its_points_is_flagged(anny_model):
     fit = fitter.fit([person.observation], K, options=FitOptions(use_icp=False, use_chamfer=False))[0]
     assert fit.quality.points_to_mesh_m > load_config().fitting.lidar_mismatch_m
     assert FLAG_LIDAR_MISMATCH in fit.flags
+
+
+def test_a_given_hypothesis_competes_with_the_builtin_headings(anny_model):
+    """`PersonObservation.hypothesis` (a track's warm start) joins the built-in heading hypotheses, and
+    when it is the truth the objective keeps it over them."""
+    import dataclasses
+
+    fitter = Fitter(load_config().fitting, anny_model)
+    (sp,), K = _people(anny_model, 1, seed=5)
+    truth = sp.truth.copy()
+    truth.transl = anny_model.posed([sp.truth])[0].keypoints3d[[11, 12]].mean(axis=0)  # hypotheses' form: hips
+    obs = dataclasses.replace(sp.observation, init=None, hypothesis=truth)
+    batch = fitter._start([obs], K, None, FitOptions())
+    fitter._initialize(batch)
+    assert batch.hypotheses[0][-1] is not truth and np.allclose(batch.hypotheses[0][-1].pose, truth.pose)
+    with_it = fitter.fit([obs], K, options=FitOptions(optimize=False))[0]  # init, hypotheses, ICP
+    without = fitter.fit([dataclasses.replace(obs, hypothesis=None)], K, options=FitOptions(optimize=False))[0]
+    assert _mpjpe_mm(with_it, sp) < 40.0 and _mpjpe_mm(with_it, sp) < _mpjpe_mm(without, sp), (
+        _mpjpe_mm(with_it, sp), _mpjpe_mm(without, sp))

@@ -155,3 +155,27 @@ def test_a_person_fitted_from_the_image_who_regains_points_gets_the_cold_start()
         path.fit_observed(FrameFits(frame, people, [], np.zeros(3)))
         used.append("cold" if len(cold.calls) > sum(u == "cold" for u in used) else "warm")
     assert used == ["cold", "warm", "cold", "warm"]
+
+
+def test_every_nth_frame_of_a_track_is_a_cold_start_with_the_warm_start_among_its_hypotheses():
+    """A warm solve keeps whatever minimum it inherited (a wrong heading, say) and its residuals do not
+    tell: every `refresh_frames` frames the cold start runs, the warm start one of its hypotheses."""
+    from types import SimpleNamespace
+
+    from node_support import StubFitter
+
+    from smplify3d_ros.frame_fitter import FrameFits, FrameFitter
+
+    cold, warm = StubFitter(), StubFitter()
+    core = load_config(overrides={"tracking": {"refresh_frames": 3}})
+    path = FrameFitter(core, fitter=cold, tracker=Tracker(core.tracking), warm_fitter=warm)
+    for k in range(7):
+        frame = SimpleNamespace(stamp_ns=k * NS, camera=SimpleNamespace(K=np.eye(3)))
+        people = path.tracker.assign([observation(4, 0.1 * k)], frame.stamp_ns)
+        path.fit_observed(FrameFits(frame, people, [], np.zeros(3)))
+    assert len(cold.calls) == 3 and len(warm.calls) == 4  # frames 0 (new), 3 and 6 (refresh)
+    first, *refreshed = [call[0] for call in cold.calls]
+    assert first.hypothesis is None and all(p.hypothesis is not None for p in refreshed)
+    expected = path.tracker.track(4).motion.predicted(0.0)  # after the last update: where the hips are
+    assert np.linalg.norm(refreshed[-1].hypothesis.transl - expected) < 0.2, "transl is the hip midpoint"
+    assert path.tracker.stats.fits["refresh"] == 2 and path.tracker.stats.fits["warm"] == 4

@@ -210,6 +210,8 @@ class Fitter:
             for root, pelvis in hypotheses:
                 batch.hypotheses[i].append(BodyParams(self.model.name, mean_shape.copy(),
                                                       self._neutral_pose.copy(), root, pelvis))
+            if p.hypothesis is not None and p.hypothesis.model == self.model.name:
+                batch.hypotheses[i].append(p.hypothesis.copy())
             params.append(batch.hypotheses[i][0])
             batch.builtin[i] = True
             if batch.use_lidar[i]:
