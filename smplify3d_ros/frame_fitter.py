@@ -177,18 +177,17 @@ class FrameFitter:
         return replace(observed, fits=fits, latency={**observed.latency, "fit": time.perf_counter() - t})
 
     def _fit_tracked(self, observed: FrameFits, options: FitOptions | None) -> list[BodyFit]:
-        """Warm fits for tracked people, cold ones for the others, for warm fits that lost their person and,
-        every `tracking.refresh_frames` frames of a track, for the tracked person with their warm start as
-        one more hypothesis of the cold start (a warm solve cannot leave a wrong minimum, e.g. a heading
-        it inherited, and the fits' residuals do not tell: the objective picks); the tracks updated with
-        the result (velocity onto each fit)."""
+        """Warm fits for tracked people, cold ones for the others and for warm fits that lost their person;
+        every `tracking.refresh_frames` frames of a track, a cold fit too, with the warm start as one more
+        hypothesis, which replaces the warm fit when its final loss is below `tracking.refresh_margin` of
+        the warm fit's (a warm solve cannot leave a wrong minimum, e.g. a heading it inherited, and the
+        fits' residuals do not tell). The tracks are updated with the result (velocity onto each fit)."""
         tracker, stamp, K = self.tracker, observed.frame.stamp_ns, observed.frame.camera.K
         people = observed.observations
         warm_start = {i: tracker.warm_start(p.person_id, stamp) for i, p in enumerate(people)
                       if p.init is None and not self._regained(p)}
-        refresh = {i for i, params in warm_start.items() if params is not None and self._refresh_due(people[i])}
-        warm = [i for i, params in warm_start.items() if params is not None and i not in refresh]
-        fits: dict[int, BodyFit] = {}
+        warm = [i for i, params in warm_start.items() if params is not None]
+        warm_fits: dict[int, BodyFit] = {}
         if warm:
             warm_people = [replace(people[i], init=warm_start[i],
                                    init_vertices=self._moved_mesh(people[i], warm_start[i])) for i in warm]
@@ -196,17 +195,20 @@ class FrameFitter:
             for i, fit in zip(warm, self.warm_fitter.fit(warm_people, K, observed.lidar_origin, warm_options),
                               strict=True):
                 if not self._lost(fit, people[i]):
-                    fits[i] = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
-        kept = len(fits)
-        cold = [i for i in range(len(people)) if i not in fits]
+                    warm_fits[i] = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
+        refresh = {i for i in warm_fits if self._refresh_due(people[i])}
+        cold = [i for i in range(len(people)) if i not in warm_fits or i in refresh]
+        fits = dict(warm_fits)
         if cold:
             cold_people = [replace(people[i], hypothesis=self._as_hypothesis(people[i], warm_start[i], stamp))
                            if i in refresh else people[i] for i in cold]
-            cold_fits = self.fitter.fit(cold_people, K, observed.lidar_origin, options)
-            fits.update(zip(cold, cold_fits, strict=True))
-        lost = len(warm) - kept
-        tracker.stats.fits.update({"warm": kept, "lost": lost, "refresh": len(refresh),
-                                   "cold": len(cold) - lost - len(refresh)})
+            for i, fit in zip(cold, self.fitter.fit(cold_people, K, observed.lidar_origin, options), strict=True):
+                if i not in warm_fits or self._better(fit, warm_fits[i]):
+                    fits[i] = fit
+        refreshed = sum(fits[i] is not warm_fits[i] for i in refresh)
+        lost = len(warm) - len(warm_fits)
+        tracker.stats.fits.update({"warm": len(warm_fits) - refreshed, "lost": lost, "refresh": len(refresh),
+                                   "refreshed": refreshed, "cold": len(cold) - len(refresh) - lost})
         pose = self.fitter.model.posed if isinstance(self.fitter, Fitter) else None  # stand-ins: unsmoothed
         return tracker.update([fits[i] for i in range(len(people))], people, stamp, pose)
 
@@ -227,6 +229,11 @@ class FrameFitter:
         hypothesis = start.copy()
         hypothesis.transl = track.motion.predicted(track.age_s(stamp_ns)).copy()
         return hypothesis
+
+    def _better(self, cold: BodyFit, warm: BodyFit) -> bool:
+        """A refresh's cold fit is kept over the warm fit only when its final loss is clearly lower."""
+        return bool(np.isfinite(cold.quality.final_loss) and FLAG_DIVERGED not in cold.flags
+                    and cold.quality.final_loss < self.config.tracking.refresh_margin * warm.quality.final_loss)
 
     def _refresh_due(self, obs: PersonObservation) -> bool:
         every = self.config.tracking.refresh_frames

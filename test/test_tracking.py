@@ -159,7 +159,8 @@ def test_a_person_fitted_from_the_image_who_regains_points_gets_the_cold_start()
 
 def test_every_nth_frame_of_a_track_is_a_cold_start_with_the_warm_start_among_its_hypotheses():
     """A warm solve keeps whatever minimum it inherited (a wrong heading, say) and its residuals do not
-    tell: every `refresh_frames` frames the cold start runs, the warm start one of its hypotheses."""
+    tell: every `refresh_frames` frames the cold start runs too, the warm start one of its hypotheses,
+    and replaces the warm fit only with a clearly lower final loss."""
     from types import SimpleNamespace
 
     from node_support import StubFitter
@@ -173,9 +174,11 @@ def test_every_nth_frame_of_a_track_is_a_cold_start_with_the_warm_start_among_it
         frame = SimpleNamespace(stamp_ns=k * NS, camera=SimpleNamespace(K=np.eye(3)))
         people = path.tracker.assign([observation(4, 0.1 * k)], frame.stamp_ns)
         path.fit_observed(FrameFits(frame, people, [], np.zeros(3)))
-    assert len(cold.calls) == 3 and len(warm.calls) == 4  # frames 0 (new), 3 and 6 (refresh)
+    assert len(cold.calls) == 3 and len(warm.calls) == 6  # cold: frames 0 (new), 3 and 6 (refresh)
     first, *refreshed = [call[0] for call in cold.calls]
     assert first.hypothesis is None and all(p.hypothesis is not None for p in refreshed)
     expected = path.tracker.track(4).motion.predicted(0.0)  # after the last update: where the hips are
     assert np.linalg.norm(refreshed[-1].hypothesis.transl - expected) < 0.2, "transl is the hip midpoint"
-    assert path.tracker.stats.fits["refresh"] == 2 and path.tracker.stats.fits["warm"] == 4
+    fits = path.tracker.stats.fits
+    assert fits["refresh"] == 2 and fits["refreshed"] == 0 and fits["warm"] == 6, "equal losses: warm kept"
+    assert path.tracker.track(4).last_fit.flags == {"warm_start"}
