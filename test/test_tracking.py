@@ -182,3 +182,32 @@ def test_every_nth_frame_of_a_track_is_a_cold_start_with_the_warm_start_among_it
     fits = path.tracker.stats.fits
     assert fits["refresh"] == 2 and fits["refreshed"] == 0 and fits["warm"] == 6, "equal losses: warm kept"
     assert path.tracker.track(4).last_fit.flags == {"warm_start"}
+
+
+def test_a_warm_fit_that_lost_its_person_falls_back_to_the_cold_start():
+    """A warm fit whose keypoints reproject far off (more than `lost_reprojection` of the box height) or
+    whose mesh lies far from its points is thrown away and the person fitted cold, and counted as lost."""
+    from types import SimpleNamespace
+
+    from node_support import StubFitter
+
+    from smplify3d_ros.frame_fitter import FrameFits, FrameFitter
+
+    class LosesThePerson(StubFitter):  # the warm solve: 1 px off, then 80 px (box 200 px tall), then 40 cm
+        def fit(self, people, K, origin, options=None):
+            fits = super().fit(people, K, origin, options)
+            reprojection, chamfer = ((1.0, 0.01), (80.0, 0.01), (1.0, 0.4))[min(len(self.calls) - 1, 2)]
+            return [dataclasses.replace(f, quality=dataclasses.replace(f.quality, reprojection_px=reprojection,
+                                                                       chamfer_m=chamfer)) for f in fits]
+
+    cold, warm = StubFitter(), LosesThePerson()
+    core = load_config(overrides={"tracking": {"refresh_frames": 0}})
+    path = FrameFitter(core, fitter=cold, tracker=Tracker(core.tracking), warm_fitter=warm)
+    flags = []
+    for k in range(4):
+        frame = SimpleNamespace(stamp_ns=k * NS, camera=SimpleNamespace(K=np.eye(3)))
+        people = path.tracker.assign([observation(2, 0.1 * k)], frame.stamp_ns)
+        flags.append(sorted(path.fit_observed(FrameFits(frame, people, [], np.zeros(3))).fits[0].flags))
+    assert len(warm.calls) == 3 and len(cold.calls) == 3  # frame 0 new; frames 2 and 3 lost
+    assert flags == [[], ["warm_start"], [], []]
+    assert path.tracker.stats.fits["lost"] == 2 and path.tracker.stats.fits["warm"] == 1
