@@ -1,4 +1,4 @@
-"""Shared fixtures: the body model and configuration are built once per test session."""
+"""Shared fixtures: the body model and configuration, built once per test session; an rclpy context per test."""
 
 from __future__ import annotations
 
@@ -23,3 +23,15 @@ def anny_model(config):
 @pytest.fixture()
 def rng():
     return np.random.default_rng(1234)
+
+
+@pytest.fixture()
+def ros():
+    """rclpy initialised in a ROS domain of this test run's own (loopback only), shut down after."""
+    import node_support
+    import rclpy
+
+    node_support.isolate_ros_graph()
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()

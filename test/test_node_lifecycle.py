@@ -17,14 +17,6 @@ rclpy = pytest.importorskip("rclpy")
 REPO = Path(__file__).resolve().parent.parent
 
 
-@pytest.fixture()
-def ros():
-    node_support.isolate_ros_graph()
-    rclpy.init()
-    yield
-    rclpy.try_shutdown()
-
-
 def test_parameters_are_declared_with_descriptions_and_profile_values(ros):
     from smplify3d_ros.node import create_node
 

@@ -65,14 +65,6 @@ def test_every_range_pattern_names_a_key():
 rclpy = pytest.importorskip("rclpy")
 
 
-@pytest.fixture()
-def ros():
-    node_support.isolate_ros_graph()
-    rclpy.init()
-    yield
-    rclpy.try_shutdown()
-
-
 def test_every_core_key_is_a_parameter_with_the_profile_value(ros):
     from smplify3d_ros.node import create_node
 
