@@ -30,7 +30,7 @@ from smplify3d_ros.fitting.fitter import FitOptions, Fitter
 from smplify3d_ros.lidar.config import ExtractionConfig
 from smplify3d_ros.lidar.extract import ExtractionResult, extract_people
 from smplify3d_ros.settings import to_dict
-from smplify3d_ros.tracking.tracker import Tracker
+from smplify3d_ros.tracking.tracker import Tracker, WarmStart
 from smplify3d_ros.types import (
     FLAG_DIVERGED,
     FLAG_EXTERNAL_INIT,
@@ -186,11 +186,11 @@ class FrameFitter:
         people = observed.observations
         warm_start = {i: tracker.warm_start(p.person_id, stamp) for i, p in enumerate(people)
                       if p.init is None and not self._regained(p)}
-        warm = [i for i, params in warm_start.items() if params is not None]
+        warm = [i for i, start in warm_start.items() if start is not None]
         warm_fits: dict[int, BodyFit] = {}
         if warm:
-            warm_people = [replace(people[i], init=warm_start[i],
-                                   init_vertices=self._moved_mesh(people[i], warm_start[i])) for i in warm]
+            warm_people = [replace(people[i], init=warm_start[i].params, init_vertices=warm_start[i].vertices)
+                           for i in warm]
             warm_options = replace(options or FitOptions(), use_icp=self.config.tracking.warm_icp)
             for i, fit in zip(warm, self.warm_fitter.fit(warm_people, K, observed.lidar_origin, warm_options),
                               strict=True):
@@ -200,8 +200,8 @@ class FrameFitter:
         cold = [i for i in range(len(people)) if i not in warm_fits or i in refresh]
         fits = dict(warm_fits)
         if cold:
-            cold_people = [replace(people[i], hypothesis=self._as_hypothesis(people[i], warm_start[i], stamp))
-                           if i in refresh else people[i] for i in cold]
+            cold_people = [replace(people[i], hypothesis=_as_hypothesis(warm_start[i])) if i in refresh
+                           else people[i] for i in cold]
             for i, fit in zip(cold, self.fitter.fit(cold_people, K, observed.lidar_origin, options), strict=True):
                 if i not in warm_fits or self._better(fit, warm_fits[i]):
                     fits[i] = fit
@@ -211,24 +211,6 @@ class FrameFitter:
                                    "refreshed": refreshed, "cold": len(cold) - len(refresh) - lost})
         pose = self.fitter.model.posed if isinstance(self.fitter, Fitter) else None  # stand-ins: unsmoothed
         return tracker.update([fits[i] for i in range(len(people))], people, stamp, pose)
-
-    def _moved_mesh(self, obs: PersonObservation, start: BodyParams) -> np.ndarray | None:
-        """The track's last fitted mesh where the warm start put the body (`Tracker.warm_start` only
-        translates it; None if it turned it). The warm start's held shape may differ from the last fit's by
-        one step of the shape averaging, millimetres of surface, which the rigid alignment does not need."""
-        last = self.tracker.track(obs.person_id).last_fit
-        if last.vertices is None or np.shape(last.params.root_orient) != np.shape(start.root_orient) \
-                or not np.allclose(last.params.root_orient, start.root_orient):
-            return None
-        return (last.vertices + (start.transl - last.params.transl)).astype(np.float32)
-
-    def _as_hypothesis(self, obs: PersonObservation, start: BodyParams, stamp_ns: int) -> BodyParams:
-        """The warm start in the built-in hypotheses' form: `transl` is where the hip midpoint goes (the
-        motion filter's prediction, where `Tracker.warm_start` put it)."""
-        track = self.tracker.track(obs.person_id)
-        hypothesis = start.copy()
-        hypothesis.transl = track.motion.predicted(track.age_s(stamp_ns)).copy()
-        return hypothesis
 
     def _better(self, cold: BodyFit, warm: BodyFit) -> bool:
         """A refresh's cold fit is kept over the warm fit only when its final loss is clearly lower."""
@@ -243,7 +225,7 @@ class FrameFitter:
         """A tracked person fitted from the image alone last time who has LiDAR points again: their last
         fit's depth and pose were guesses the points may contradict by metres, which a short warm solve
         walks off only over many frames, so they get the cold start."""
-        track = self.tracker.track(obs.person_id) if self.tracker is not None else None
+        track = self.tracker.track(obs.person_id)
         return (track is not None and track.last_fit is not None and FLAG_IMAGE_ONLY in track.last_fit.flags
                 and len(obs.points) >= self.config.fitting.min_points)
 
@@ -258,6 +240,13 @@ class FrameFitter:
     def fit(self, frame: Frame, options: FitOptions | None = None) -> FrameFits:
         """The whole path of one frame (module docstring)."""
         return self.fit_observed(self.observe(frame), options)
+
+
+def _as_hypothesis(start: WarmStart) -> BodyParams:
+    """A warm start in the built-in hypotheses' form: `transl` is where the hip midpoint goes."""
+    hypothesis = start.params.copy()
+    hypothesis.transl = start.pelvis.copy()
+    return hypothesis
 
 
 def warm_fitter_for(config: Config, fitter: Fitter) -> Fitter:

@@ -106,7 +106,7 @@ def test_warm_start_is_the_last_fit_at_the_predicted_place_with_the_held_shape()
     tracker = Tracker(config(shape_frames=3))
     for frame in range(6):
         step(tracker, frame, [observation(1, 0.1 * frame)], shapes={0: (0.3,) * 6})
-    warm = tracker.warm_start(1, 7 * NS)  # two frames after the last
+    warm = tracker.warm_start(1, 7 * NS).params  # two frames after the last
     last = tracker.track(1).last_fit
     assert warm.shape == pytest.approx(np.full(6, 0.3))
     moved = warm.transl - last.params.transl

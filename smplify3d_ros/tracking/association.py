@@ -38,9 +38,9 @@ def _cost(track: Track, obs: PersonObservation, stamp_ns: int, config: TrackingC
     dt = track.age_s(stamp_ns)
     overlap = box_iou(track.bbox, np.asarray(obs.bbox, np.float64))
     surface = np.median(obs.points, axis=0) if len(obs.points) else None
-    if surface is None or track.surface is None:
+    predicted = track.predicted_surface(stamp_ns)
+    if surface is None or predicted is None:
         return config.iou_weight * (1.0 - overlap) if overlap > 0 else _NO_MATCH
-    predicted = track.surface + dt * track.motion.velocity
     distance = float(np.hypot(*(predicted - surface)[[0, 2]]))
     if distance > config.gate_m + config.gate_speed_mps * dt:
         return _NO_MATCH

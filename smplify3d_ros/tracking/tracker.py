@@ -72,6 +72,22 @@ class Track:
     def age_s(self, stamp_ns: int) -> float:
         return (stamp_ns - self.last_stamp_ns) * _NS
 
+    def predicted_surface(self, stamp_ns: int) -> np.ndarray | None:
+        """(3,) where the last points' median will be at `stamp_ns` (moved by the filter's velocity), or
+        None when the last fit had no points."""
+        if self.surface is None:
+            return None
+        return self.surface + (self.motion.predicted(self.age_s(stamp_ns)) - self.motion.position)
+
+
+@dataclass
+class WarmStart:
+    """A tracked person's start for the warm solve (`Tracker.warm_start`)."""
+
+    params: BodyParams  # the last fit moved to the predicted pelvis, with the track's shape
+    pelvis: np.ndarray  # (3,) where its hip midpoint now is: the motion filter's prediction
+    vertices: np.ndarray | None  # (V, 3) float32 the last fit's mesh moved with it (None: the fit had none)
+
 
 @dataclass
 class TrackerStats:
@@ -126,18 +142,23 @@ class Tracker:
     def track(self, person_id: int) -> Track | None:
         return self.tracks.get(person_id)
 
-    def warm_start(self, person_id: int, stamp_ns: int) -> BodyParams | None:
-        """The track's last fit moved to the predicted pelvis at `stamp_ns`, with the track's shape."""
+    def warm_start(self, person_id: int, stamp_ns: int) -> WarmStart | None:
+        """The track's last fit moved (translated) to the predicted pelvis at `stamp_ns`, with the track's
+        shape, and its mesh moved with it: the warm solve's ICP needs no forward pass of its own. The held
+        shape may differ from the last fit's by one step of the shape averaging, millimetres of surface,
+        which the rigid alignment does not notice."""
         track = self.tracks.get(person_id)
         if track is None or track.last_fit is None or not self.config.warm_start:
             return None
         fit = track.last_fit
-        shift = track.motion.predicted(track.age_s(stamp_ns)) - pelvis(fit)
+        target = track.motion.predicted(track.age_s(stamp_ns))
+        shift = target - pelvis(fit)
         root, transl, _ = move_body(fit.params.root_orient, fit.params.transl, fit.center, transform(t=shift))
         shape = track.shape if track.shape is not None else self._mean_shape(track)
         params = fit.params.copy()
         params.root_orient, params.transl, params.shape = root, transl, shape.copy()
-        return params
+        vertices = None if fit.vertices is None else (fit.vertices + shift).astype(np.float32)
+        return WarmStart(params, target.copy(), vertices)
 
     def expected_depth(self, person_ids: np.ndarray, stamp_ns: int) -> np.ndarray:
         """(P, 2) where the LiDAR should see each detector-tracked person at `stamp_ns`: the depth of their
@@ -154,8 +175,8 @@ class Tracker:
             age = track.age_s(stamp_ns)
             if age > self.config.max_unseen_s:
                 continue
-            shift = track.motion.predicted(age) - track.motion.position
-            out[i] = track.surface[2] + shift[2], self.config.extraction_gate_m + self.config.gate_speed_mps * age
+            tolerance = self.config.extraction_gate_m + self.config.gate_speed_mps * age
+            out[i] = track.predicted_surface(stamp_ns)[2], tolerance
         return out
 
     def held_shape(self, person_id: int) -> np.ndarray | None:
@@ -240,4 +261,4 @@ class Tracker:
             track.shape = self._mean_shape(track)
 
 
-__all__ = ["Track", "Tracker", "TrackerStats", "box_iou", "pelvis", "surface_point"]
+__all__ = ["Track", "Tracker", "TrackerStats", "WarmStart", "box_iou", "pelvis", "surface_point"]
