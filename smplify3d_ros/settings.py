@@ -18,7 +18,10 @@ Unknown keys, missing keys, wrong types and out-of-range values raise `ConfigErr
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import os
+import stat
 import types
 import typing
 from collections.abc import Mapping
@@ -67,11 +70,34 @@ def resolve_profile(profile: str | Path | None) -> Path:
     raise ConfigError(f"unknown params profile {str(profile)!r}; known profiles: {known} or a .yaml path")
 
 
+# libyaml's safe loader when PyYAML was built with it (ten times faster), else the pure-Python one
+_SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 def load_yaml(path: Path) -> dict[str, Any]:
-    """A YAML mapping; unreadable files, YAML errors and tags (`!!python/...`) are one-line ConfigErrors."""
+    """A YAML mapping; unreadable files, YAML errors and tags (`!!python/...`) are one-line ConfigErrors.
+    A file is parsed once while it is unchanged (same size and modification time); callers get a copy."""
+    try:
+        info = os.stat(path)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if not stat.S_ISREG(info.st_mode):  # a pipe or a device: read every time
+        return _parse_yaml(path)
+    key = (os.path.abspath(path), info.st_mtime_ns, info.st_size)
+    if key not in _PARSED:
+        if len(_PARSED) >= 64:  # a tuning loop writing profiles: keep the cache bounded
+            _PARSED.clear()
+        _PARSED[key] = _parse_yaml(path)
+    return copy.deepcopy(_PARSED[key])
+
+
+_PARSED: dict[tuple[str, int, int], dict[str, Any]] = {}
+
+
+def _parse_yaml(path: Path) -> dict[str, Any]:
     try:
         with open(path, encoding="utf-8") as handle:
-            data = yaml.safe_load(handle) or {}
+            data = yaml.load(handle, Loader=_SAFE_LOADER) or {}
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except UnicodeDecodeError:
