@@ -43,7 +43,6 @@ from smplify3d_ros.config import Config, ConfigError, load_config, params_dir, r
 from smplify3d_ros.runtime.config import NodeConfig, load_node_config, parameter_range
 from smplify3d_ros.runtime.messages import FrameMessages
 from smplify3d_ros.runtime.outputs import DIAGNOSTICS_TYPE, NODE_NAME, OUTPUT_TYPES, OUTPUTS, output_type
-from smplify3d_ros.runtime.processor import MessageProcessor
 from smplify3d_ros.runtime.stats import DiagnosticsReporter, InputCheck, InputMonitor, LogLimiter, input_level
 from smplify3d_ros.runtime.sync import SkeletonAssembler, SkeletonSet, make_synchronizer, sync_values
 from smplify3d_ros.runtime.transforms import (
@@ -265,6 +264,8 @@ class Smplify3dNode(Node):
         # (and warned about) instead of silently ignored; _load_config re-declares the known ones typed
         super().__init__(NODE_NAME, automatically_declare_parameters_from_overrides=True, **kwargs)
         self.config, self.node_config = self._load_config()
+        from smplify3d_ros.runtime.processor import MessageProcessor  # torch: once the parameters are valid
+
         self.factory = RclpyFactory()
         node_cfg = self.node_config
         self.get_logger().info(

@@ -13,7 +13,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -22,15 +22,17 @@ from smplify3d_ros.config import load_config
 from smplify3d_ros.replay.output import Output, OutputError, prepare_output
 from smplify3d_ros.replay.picture import PictureChooser
 from smplify3d_ros.replay.reader import BagReader, BagStep, ReplayError
-from smplify3d_ros.replay.scoring import TruthScorer
 from smplify3d_ros.replay.sources import READ_BAD_TRUTH
 from smplify3d_ros.replay.writer import BagWriter, write_metadata_yaml
 from smplify3d_ros.runtime.config import load_node_config
 from smplify3d_ros.runtime.outputs import DIAGNOSTICS_TYPE, NODE_NAME, OUTPUTS, output_topic, output_type
-from smplify3d_ros.runtime.processor import FrameResult, MessageProcessor
 from smplify3d_ros.runtime.stats import DiagnosticsReporter
 from smplify3d_ros.runtime.sync import sync_values
 from smplify3d_ros.runtime.transforms import Transforms
+
+if TYPE_CHECKING:  # the processor and the scorer load torch: imported when a run starts, so that a
+    # refused output or a missing bag is reported at once
+    from smplify3d_ros.runtime.processor import FrameResult, MessageProcessor
 
 OUTPUT_TOPICS = {name: f"/{NODE_NAME}/{name}" for name in OUTPUTS}
 DIAGNOSTICS_TOPIC = "/diagnostics"
@@ -122,6 +124,8 @@ class _Replay:
 
     def __init__(self, reader: BagReader, processor: MessageProcessor, writer: BagWriter | None,
                  summary: ReplaySummary, png: bool, diagnostics_period_s: float) -> None:
+        from smplify3d_ros.replay.scoring import TruthScorer
+
         self.reader, self.processor, self.writer, self.summary = reader, processor, writer, summary
         self.slop_ns = round(processor.node.sync.slop_s * 1e9)
         self.scorer = TruthScorer(processor.fitter.model, self.slop_ns)
@@ -295,6 +299,7 @@ def _run(bag: Path, out: Output | None, picture: Output | None, progress: bool, 
     from tqdm import tqdm
 
     from msg_adapters import RosbagsFactory
+    from smplify3d_ros.runtime.processor import MessageProcessor
 
     summary = ReplaySummary(str(bag))
     with BagReader(bag, node_config, log) as reader:
