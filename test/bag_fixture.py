@@ -1,4 +1,5 @@
-"""A tiny synthetic Jackal recording for the node and replay tests, written with the msg_adapters writers.
+"""A tiny synthetic Jackal recording for the node and replay tests, written with the msg_adapters writers
+and the simulator's message builders (`sim.bag_messages.tf_static_message`, `eval.truth.truth_document`).
 
 People are posed with the body model (as in `smplify3d_ros.eval.synthetic`), stand on a ground plane in
 front of a wall; the LiDAR sees points sampled on their sensor-facing surfaces, the ground and the wall;
@@ -13,21 +14,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from msg_adapters import (
-    RosbagsFactory,
-    camera_model_to_msg,
-    fits_to_bodies_json,
-    make_pointcloud2,
-    numpy_to_image,
-    write_keypoints,
-)
+from msg_adapters import RosbagsFactory, camera_model_to_msg, make_pointcloud2, numpy_to_image, write_keypoints
 from smplify3d_ros.camera import project_points, transform_points
 from smplify3d_ros.eval.synthetic import default_intrinsics, random_pose, sample_surface
+from smplify3d_ros.eval.truth import TruthBody, TruthFrame, truth_document
 from smplify3d_ros.fitting.init import upright_root_orient
 from smplify3d_ros.fitting.visibility import front_facing
-from smplify3d_ros.types import BodyFit, BodyParams, CameraModel, FitQuality
+from smplify3d_ros.sim.bag_messages import tf_static_message
+from smplify3d_ros.types import BodyParams, CameraModel
 
 T0 = 1_700_000_000.0  # s, stamp of the first frame
 PERIOD = 0.1  # s, 10 Hz
@@ -72,15 +67,11 @@ def fixture_camera() -> CameraModel:
 
 def pose_person(model, rng: np.random.Generator, pid: int, lateral: float, distance: float, yaw: float,
                 ground_y: float) -> TruePerson:
-    dt = model.anat_frames.dtype
     shape = np.clip(0.5 + 0.15 * rng.standard_normal(len(model.shape_names)), 0.1, 0.9)
     params = BodyParams(model.name, shape, random_pose(model, rng, 0.2), upright_root_orient(yaw),
                         np.array([lateral, 0.0, distance]))
-    with torch.no_grad():
-        out = model(*(torch.as_tensor(a, dtype=dt)[None] for a in (params.shape, params.pose, params.root_orient,
-                                                                    params.transl)))
-    verts = out.vertices[0].double().numpy()
-    kp3d = out.keypoints[0].double().numpy()
+    posed = model.posed([params])[0]
+    verts, kp3d = posed.vertices, posed.keypoints3d
     dy = ground_y - verts[:, 1].max()  # stand on the ground
     params.transl = params.transl + [0.0, dy, 0.0]
     return TruePerson(pid, params, kp3d + [0.0, dy, 0.0], verts + [0.0, dy, 0.0])
@@ -142,14 +133,8 @@ def truth_json(frame: FixtureFrame, joint_names: list[str], templates: dict | No
             templates[key] = json.dumps({**json.loads(truth_json(frame, joint_names)), "stamp": "STAMP"})
         sec, nanosec = split_stamp(frame.stamp)
         return templates[key].replace('"STAMP"', json.dumps({"sec": sec, "nanosec": nanosec}), 1)
-    quality = FitQuality(0.0, 0.0, 0, [], True, 0.0)
-    fits = [BodyFit(p.person_id, p.params, joint_names, p.vertices.astype(np.float32),
-                    p.keypoints3d.astype(np.float32), np.zeros((len(joint_names), 3), np.float32), quality)
-            for p in frame.people]
-    doc = json.loads(fits_to_bodies_json(fits, frame.stamp, CAMERA_FRAME))
-    for body, p in zip(doc["bodies"], frame.people, strict=True):
-        body["vertices"] = np.round(p.vertices, 4).tolist()
-    return json.dumps(doc)
+    bodies = [TruthBody(p.person_id, p.params, p.keypoints3d, p.vertices) for p in frame.people]
+    return truth_document(TruthFrame(_ns(frame.stamp), CAMERA_FRAME, bodies, joint_names), joint_names)
 
 
 def fixture_image(camera: CameraModel, frame: FixtureFrame) -> np.ndarray:
@@ -162,21 +147,6 @@ def fixture_image(camera: CameraModel, frame: FixtureFrame) -> np.ndarray:
         inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
         image[uv[inside, 1], uv[inside, 0]] = (200, 60, 60)
     return image
-
-
-def tf_static_msg(factory: RosbagsFactory, T_lidar_cam: np.ndarray, stamp: float):
-    from scipy.spatial.transform import Rotation
-
-    q = Rotation.from_matrix(T_lidar_cam[:3, :3]).as_quat()
-    t = T_lidar_cam[:3, 3]
-    transform = factory.make(
-        "geometry_msgs/msg/TransformStamped", header=factory.header(stamp, LIDAR_FRAME),
-        child_frame_id=CAMERA_FRAME,
-        transform=factory.make(
-            "geometry_msgs/msg/Transform",
-            translation=factory.make("geometry_msgs/msg/Vector3", x=t[0], y=t[1], z=t[2]),
-            rotation=factory.make("geometry_msgs/msg/Quaternion", x=q[0], y=q[1], z=q[2], w=q[3])))
-    return factory.make("tf2_msgs/msg/TFMessage", transforms=[transform])
 
 
 def frame_messages(factory, camera: CameraModel, frame: FixtureFrame) -> dict[str, object]:
@@ -197,7 +167,8 @@ def fixture_messages(frames: list[FixtureFrame], camera: CameraModel, joint_name
                      T_cam_lidar: np.ndarray, with_tf: bool = True, with_image: bool = True):
     """(topic name key, message, recording time ns) of a recording, in recording order within each frame."""
     if with_tf:
-        yield "tf_static", tf_static_msg(factory, np.linalg.inv(T_cam_lidar), T0 - 1.0), _ns(T0 - 0.5)
+        tf = tf_static_message(factory, _ns(T0 - 1.0), [(LIDAR_FRAME, CAMERA_FRAME, np.linalg.inv(T_cam_lidar))])
+        yield "tf_static", tf, _ns(T0 - 0.5)
     templates: dict = {}
     for frame in frames:
         msgs = frame_messages(factory, camera, frame)
