@@ -10,6 +10,11 @@ are built once per vertex and shared by every triangle that uses the vertex (the
 object several times; do not mutate points in place). A 27k-triangle mesh converts in about 8 ms with
 rclpy (12 ms with rosbags), but rclpy's publish() then spends about 35 ms converting the 81k Points to C;
 `max_triangles` subsamples faces (leaving holes) where that is too slow.
+
+Size: with `grid_m` (the node's `publish.geometry_grid_m`, 1/256 m) the mesh's coordinates are rounded to
+the grid and given relative to the marker's pose (`mesh_origin`), and the triangles come in
+`compressible_order`: the same mesh within half a grid cell, in about a third of the bytes a bag's zstd
+chunks would otherwise need (a MarkerArray of three people: 1.2 MB raw).
 """
 
 from __future__ import annotations
@@ -49,6 +54,15 @@ def decimate_faces(faces: np.ndarray, max_triangles: int | None) -> np.ndarray:
     return faces[:: -(-len(faces) // int(max_triangles))]
 
 
+def compressible_order(faces: np.ndarray) -> np.ndarray:
+    """The same triangles, same winding, each starting at its lowest vertex index and sorted by their
+    indices: triangles that share vertices come together, which a bag's zstd chunks compress ~10 % better."""
+    if not len(faces):
+        return faces
+    rotated = np.take_along_axis(faces, (np.argmin(faces, axis=1)[:, None] + np.arange(3)) % 3, axis=1)
+    return rotated[np.lexsort((rotated[:, 2], rotated[:, 1], rotated[:, 0]))]
+
+
 def _check_faces(faces: Any) -> np.ndarray:
     f = np.asarray(faces)
     if f.ndim != 2 or f.shape[1] != 3 or (f.size and f.dtype.kind not in "iu"):
@@ -86,8 +100,28 @@ class _MarkerMaker:
         return self.f.make("visualization_msgs/msg/Marker", header=self.header, ns=ns, id=pid, action=DELETE)
 
 
-def _mesh_points(factory: MessageFactory, vertices: np.ndarray, faces: np.ndarray, decimated: bool) -> list:
-    verts = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+def snap(values: np.ndarray, grid_m: float) -> np.ndarray:
+    """`values` rounded to multiples of `grid_m` (0: unchanged). A power-of-two grid (1/256 m) leaves
+    most of each float's mantissa zero, which zstd compresses: a mesh topic's bag chunks halve."""
+    return values if not grid_m else np.round(values / grid_m) * grid_m
+
+
+# On a grid, a mesh marker's points are given relative to its pose, which is put 6 m short of the body's
+# centre on each axis: every coordinate then lies in [4, 8) m, one binary exponent, and differs from the
+# others only in its few low mantissa bits (about 20 % fewer compressed bytes than camera-frame points).
+BINADE_CENTRE_M = 6.0
+
+
+def mesh_origin(vertices: np.ndarray, grid_m: float) -> np.ndarray:
+    """(3,) the mesh marker's position: on the grid, `BINADE_CENTRE_M` short of the finite vertices'
+    centre (zeros without a grid or without finite vertices)."""
+    finite = vertices[np.isfinite(vertices).all(axis=1)]
+    if not grid_m or not len(finite):
+        return np.zeros(3)
+    return snap(finite.mean(axis=0), grid_m) - BINADE_CENTRE_M
+
+
+def _mesh_points(factory: MessageFactory, verts: np.ndarray, faces: np.ndarray, decimated: bool) -> list:
     if len(faces) and faces.max() >= len(verts):
         raise ValueError(f"faces index vertex {faces.max()} but the mesh has {len(verts)} vertices")
     finite = np.isfinite(verts).all(axis=1)
@@ -136,19 +170,22 @@ def fits_to_markers(
     text_height: float = 0.12,
     label_offset: Sequence[float] = (0.0, -0.3, 0.0),
     lifetime_s: float = 0.0,
+    grid_m: float = 0.0,
 ) -> tuple[Any, set[int]]:
     """Fits -> (MarkerArray, ids drawn now). Pass the returned ids as `previous_ids` next frame.
 
     `faces` (F, 3) are the body model's triangles (None: no mesh markers). `label_offset` (m) moves the
     label from the nose; the default is "up" in the camera optical frame (-y). `lifetime_s` 0 keeps
-    markers until deleted. Raises ValueError for malformed faces or two fits with the same person id.
+    markers until deleted. `grid_m` > 0 rounds the mesh's coordinates to that grid (`snap`); the mesh
+    marker's points are then relative to its pose (`mesh_origin`), as RViz draws them. Raises ValueError
+    for malformed faces or two fits with the same person id.
     """
     factory = resolve_factory(factory)
     mk = _MarkerMaker(factory, stamp, frame_id, alpha, lifetime_s)
     faces_used = None
     if faces is not None:
         all_faces = _check_faces(faces)
-        faces_used = decimate_faces(all_faces, max_triangles)
+        faces_used = compressible_order(decimate_faces(all_faces, max_triangles))
     markers = []
     current: set[int] = set()
     for fit in fits:
@@ -159,8 +196,10 @@ def fits_to_markers(
             raise ValueError(f"person id {pid} does not fit a Marker id (int32)")
         current.add(pid)
         if faces_used is not None:
-            points = _mesh_points(factory, fit.vertices, faces_used, len(faces_used) < len(all_faces))
-            markers.append(mk.marker(MESH_NS, pid, TRIANGLE_LIST, points))
+            verts = np.asarray(fit.vertices, dtype=np.float64).reshape(-1, 3)
+            origin = mesh_origin(verts, grid_m)
+            points = _mesh_points(factory, snap(verts - origin, grid_m), faces_used, len(faces_used) < len(all_faces))
+            markers.append(mk.marker(MESH_NS, pid, TRIANGLE_LIST, points, position=tuple(origin.tolist())))
         markers.append(mk.marker(SKELETON_NS, pid, LINE_LIST, _skeleton_points(factory, fit.keypoints3d),
                                  scale=(line_width, 0.0, 0.0), alpha=1.0))
         position = _label_position(fit.keypoints3d, label_offset)

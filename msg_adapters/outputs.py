@@ -15,6 +15,7 @@ import numpy as np
 
 from msg_adapters.factory import MessageFactory, resolve_factory
 from msg_adapters.hri import rep103_rotation
+from msg_adapters.markers import snap
 from msg_adapters.pointcloud2 import make_pointcloud2
 from smplify3d_ros.geometry import matrix_to_quaternion
 from smplify3d_ros.keypoints import HIP_INDICES, NUM_KEYPOINTS
@@ -49,14 +50,17 @@ def fits_to_joints_cloud(
 
 
 def fits_to_body_points_cloud(
-    fits: Sequence[BodyFit], stamp: Any, frame_id: str, factory: MessageFactory | None = None, stride: int = 1
+    fits: Sequence[BodyFit], stamp: Any, frame_id: str, factory: MessageFactory | None = None, stride: int = 1,
+    grid_m: float = 0.0,
 ) -> Any:
     """Mesh vertices as PointCloud2: x, y, z (float32, m), person (int32); every `stride`-th vertex,
-    non-finite ones skipped. Costmaps and other cloud consumers can use it without new code."""
+    non-finite ones skipped, coordinates rounded to `grid_m` when > 0 (`markers.snap`). Costmaps and
+    other cloud consumers can use it without new code."""
     if stride < 1:
         raise ValueError(f"stride must be >= 1, got {stride}")
     ids = _ids(fits)
-    chunks = [np.asarray(f.vertices, dtype=np.float32).reshape(-1, 3)[::stride] for f in fits]
+    chunks = [snap(np.asarray(f.vertices, dtype=np.float64).reshape(-1, 3)[::stride], grid_m).astype(np.float32)
+              for f in fits]
     xyz = np.concatenate(chunks) if chunks else np.zeros((0, 3), np.float32)
     person = np.repeat(ids.astype(np.int32), [len(c) for c in chunks])
     ok = np.isfinite(xyz).all(axis=1)

@@ -12,6 +12,7 @@ from msg_adapters.markers import (
     LINE_LIST,
     TEXT_VIEW_FACING,
     TRIANGLE_LIST,
+    compressible_order,
     decimate_faces,
     fits_to_markers,
     person_color,
@@ -67,7 +68,8 @@ def test_markers_per_person_and_deletes(factory):
     assert mesh.type == TRIANGLE_LIST and mesh.header.frame_id == "cam" and mesh.header.stamp.sec == 8
     assert len(mesh.points) == 3 * len(FACES)
     got = np.array([[p.x, p.y, p.z] for p in mesh.points])
-    np.testing.assert_allclose(got, fits[1].vertices[FACES.reshape(-1)], atol=1e-6)
+    np.testing.assert_allclose(got, fits[1].vertices[compressible_order(FACES).reshape(-1)], atol=1e-6)
+    assert (mesh.pose.position.x, mesh.pose.position.y, mesh.pose.position.z) == (0.0, 0.0, 0.0)  # no grid
     assert (mesh.color.r, mesh.color.g, mesh.color.b) == pytest.approx(person_color(12))
     assert mesh.pose.orientation.w == 1.0 and mesh.scale.x == 1.0
     skel = m["skeleton", 3]
@@ -105,7 +107,7 @@ def test_max_triangles_decimates(factory):
     fit = make_fit(2, VERTS)
     array, _ = fits_to_markers([fit], FACES, 1.0, "cam", factory=factory, max_triangles=50)
     mesh = by_ns(array)["mesh", 2]
-    kept = decimate_faces(FACES, 50)
+    kept = compressible_order(decimate_faces(FACES, 50))
     assert len(kept) <= 50 and len(mesh.points) == 3 * len(kept)
     got = np.array([[p.x, p.y, p.z] for p in mesh.points])
     np.testing.assert_allclose(got, fit.vertices[kept.reshape(-1)], atol=1e-6)
@@ -167,3 +169,47 @@ def test_27k_triangle_mesh_is_fast(factory):
         best = min(best, time.perf_counter() - t0)
     assert len(by_ns(array)["mesh", 1].points) == 3 * len(faces)
     assert best < 0.05, f"{factory.name}: {best * 1e3:.1f} ms for {len(faces)} triangles"
+
+
+def test_a_grid_rounds_the_mesh_within_half_a_cell_and_shrinks_its_compressed_size(anny_model):
+    import zstandard
+
+    from msg_adapters.markers import snap
+    from smplify3d_ros.eval.synthetic import default_intrinsics, make_person
+
+    grid = 2.0**-8
+    person = make_person(anny_model, np.random.default_rng(3), default_intrinsics(), distance=5.0, yaw=0.4,
+                         n_points=10, point_noise=0.0, keypoint_noise_px=0.0)
+    verts = anny_model.posed([person.truth])[0].vertices.astype(np.float32)  # a fit's vertices: float32
+    faces = anny_model.faces.cpu().numpy()
+    store = RosbagsFactory().typestore
+    sizes = {}
+    for g in (0.0, grid):
+        array, _ = fits_to_markers([make_fit(1, verts)], faces, 1.0, "cam", factory=RosbagsFactory(),
+                                   max_triangles=6000, grid_m=g)
+        mesh = by_ns(array)[("mesh", 1)]
+        origin = np.array([mesh.pose.position.x, mesh.pose.position.y, mesh.pose.position.z])
+        xyz = np.array([(p.x, p.y, p.z) for p in mesh.points]) + origin  # where RViz draws them
+        want = verts.astype(np.float64)[compressible_order(decimate_faces(faces, 6000)).reshape(-1)]
+        if g:
+            assert np.abs(xyz - want).max() <= g / 2 and np.array_equal(xyz, snap(want - origin, g) + origin)
+            assert np.array_equal(xyz / g, np.round(xyz / g)) and np.array_equal(origin / g, np.round(origin / g))
+            assert ((xyz - origin >= 4.0) & (xyz - origin < 8.0)).all(), "one binary exponent per coordinate"
+        else:
+            assert np.array_equal(xyz, want)
+        sizes[g] = len(zstandard.compress(bytes(store.serialize_cdr(array, "visualization_msgs/msg/MarkerArray"))))
+    print(f"compressed mesh marker: exact {sizes[0.0]} B, on a 1/256 m grid {sizes[grid]} B")
+    assert sizes[grid] < 0.5 * sizes[0.0]
+
+
+def test_the_compressible_order_keeps_every_triangle_and_its_winding():
+    rng = np.random.default_rng(0)
+    faces = rng.permutation(FACES)
+    ordered = compressible_order(faces)
+
+    def canonical(f):  # a triangle up to rotation (which keeps its winding), as a sorted set
+        return sorted(tuple(np.roll(t, -int(np.argmin(t)))) for t in f)
+
+    assert canonical(ordered) == canonical(faces) and len(ordered) == len(faces)
+    assert (ordered[:, 0] == ordered.min(axis=1)).all()
+    assert compressible_order(FACES[:0]).shape == (0, 3)

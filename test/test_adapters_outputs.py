@@ -154,3 +154,12 @@ def test_diagnostics_bad_level(level, match):
 def test_format_value():
     assert format_value(float("nan")) == "nan" and format_value(3) == "3" and format_value(False) == "false"
     assert format_value(1234567.0) == "1.23457e+06"
+
+
+def test_body_points_on_a_grid():
+    fits = [make_fit(1, 30)]
+    grid = 2.0**-8
+    cols = read_fields(fits_to_body_points_cloud(fits, 3.0, "cam", RosbagsFactory(), grid_m=grid), ["x", "y", "z"])
+    xyz = np.c_[cols["x"], cols["y"], cols["z"]].astype(np.float64)
+    assert np.abs(xyz - fits[0].vertices).max() <= grid / 2 + 1e-6
+    assert np.array_equal(xyz / grid, np.round(xyz / grid))

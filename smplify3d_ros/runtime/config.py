@@ -137,6 +137,7 @@ class PublishConfig:
     bodies: bool  # ~/bodies
     mesh_max_triangles: int  # mesh marker decimation (0: every triangle)
     body_points_stride: int  # every n-th vertex on ~/body_points
+    geometry_grid_m: float  # mesh markers and ~/body_points rounded to this grid, m (0: exact)
     marker_alpha: float  # mesh marker opacity
     clearing_points: bool  # ~/clearing_points: rays across the camera's view for Nav2's raytrace clearing
     clearing_range_m: float  # length of those rays, m
@@ -150,6 +151,7 @@ class PublishConfig:
     def __post_init__(self) -> None:
         require(self.mesh_max_triangles >= 0, "mesh_max_triangles must be >= 0 (0: all)")
         require(self.body_points_stride >= 1, "body_points_stride must be >= 1")
+        require(0.0 <= self.geometry_grid_m <= 0.05, "geometry_grid_m must be in [0, 0.05] m")
         require(0.0 <= self.marker_alpha <= 1.0, "marker_alpha must be in [0, 1]")
         require(0.1 <= self.clearing_range_m <= 100.0, "clearing_range_m must be in [0.1, 100]")
         require(0.005 <= self.clearing_resolution_m <= 1.0, "clearing_resolution_m must be in [0.005, 1]")
@@ -230,6 +232,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "qos.*.depth": (1, 1000), "sync.slop_s": (0, 5), "sync.queue_size": (1, 1000), "sync.time_reset_s": (0, _INF),
     "extrinsic.tf_timeout_s": (0, _INF), "extrinsic.publish_tf_wait_s": (0, 60), "worker_queue_size": (1, 100),
     "publish.mesh_max_triangles": (0, _INF), "publish.body_points_stride": (1, _INF),
+    "publish.geometry_grid_m": (0.0, 0.05),
     "publish.marker_alpha": (0, 1), "publish.clearing_range_m": (0.1, 100),
     "publish.clearing_resolution_m": (0.005, 1), "publish.hri_forget_after_s": (0.1, 3600),
     "publish.velocity_max_gap_s": (0, 10), "diagnostics_period_s": (0.05, 3600),

@@ -127,11 +127,12 @@ class OutputBuilder:
         if pub.markers:
             out["markers"], self._marker_ids = fits_to_markers(
                 fits, self.faces, stamp, frame_id, self._marker_ids, f,
-                max_triangles=pub.mesh_max_triangles or None, alpha=pub.marker_alpha)
+                max_triangles=pub.mesh_max_triangles or None, alpha=pub.marker_alpha, grid_m=pub.geometry_grid_m)
         if pub.joints:
             out["joints"] = fits_to_joints_cloud(fits, stamp, frame_id, f)
         if pub.body_points:
-            out["body_points"] = fits_to_body_points_cloud(fits, stamp, frame_id, f, pub.body_points_stride)
+            out["body_points"] = fits_to_body_points_cloud(fits, stamp, frame_id, f, pub.body_points_stride,
+                                                           pub.geometry_grid_m)
         if pub.people:
             out["people"] = fits_to_pose_array(fits, stamp, frame_id, f)
         if pub.bodies:
