@@ -120,12 +120,12 @@ def test_warm_start_is_the_last_fit_at_the_predicted_place_with_the_held_shape()
 def test_a_tracked_person_half_hidden_keeps_their_own_points():
     """bags/crossing: person 2 (7 m) walks behind person 1 (5 m); past person 1's shoulder the LiDAR
     sees a wall 4 m behind person 2, which the extraction took for them while they were half hidden
-    (four fits 3.5-4.1 m off, MPJPE over the first 12 frames 491 mm). The track's expected depth keeps
-    them on their own points."""
+    (four fits 3.5-4.1 m off, MPJPE over the first 12 frames 491 mm; over the first 8, 212 mm with
+    `tracking.extraction_gate_m` off). The track's expected depth keeps them on their own points."""
     from smplify3d_ros.replay import replay_bag
 
-    summary = replay_bag("bags/crossing", max_frames=12, progress=False)
-    assert summary.people_evaluated >= 34
+    summary = replay_bag("bags/crossing", max_frames=8, progress=False)
+    assert summary.people_evaluated >= 22
     assert summary.mpjpe_mm < 100.0, summary.mpjpe_mm
 
 
