@@ -2,8 +2,15 @@
 
 from __future__ import annotations
 
-import numpy as np
-import pytest
+import os
+
+# One thread per process for the numeric libraries (OpenMP, OpenBLAS, MKL), in the test workers and in
+# the processes they start: the suite runs two workers on two cores, and more threads only contend.
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+import numpy as np  # noqa: E402 - after the thread settings, which the libraries read when they load
+import pytest  # noqa: E402
 
 
 @pytest.fixture(scope="session")
