@@ -8,9 +8,11 @@ import types
 
 import numpy as np
 import pytest
+import roma
 import scipy.sparse
 import torch
 
+from smplify3d_ros.body.base import BodyOutput
 from smplify3d_ros.body.joints import BODY_JOINTS
 from smplify3d_ros.body.smpl_model import SmplBody, SmplFileError, load_arrays
 from smplify3d_ros.fitting.init import upright_root_orient
@@ -37,8 +39,9 @@ def test_anny_upright_facing_camera(anny_model):
 
 
 def test_anny_subset_forward_matches_the_full_one(anny_model):
-    """The fitting steps pose only the vertices they use (own rest shaping and skinning): the same
-    vertices, joints and keypoints as Anny's full forward, and the same gradients."""
+    """The fitting steps pose only the vertices they use (own rest shaping and skinning), and the full
+    forward poses every vertex the same way: the same vertices, joints and keypoints as Anny's own
+    forward (its shaping and skinning, the keypoints regressed from every vertex), and the same gradients."""
     g = torch.Generator().manual_seed(0)
     dt = anny_model.anat_frames.dtype
     B, J = 2, len(BODY_JOINTS)
@@ -48,14 +51,21 @@ def test_anny_subset_forward_matches_the_full_one(anny_model):
     transl = torch.tensor([[0.3, -0.1, 4.0], [-1.0, 0.2, 7.0]], dtype=dt)
     subset = torch.randperm(13718, generator=g)[:700]
     outputs = []
-    for index in (None, subset):
+    for index in ("anny", None, subset):
         s, p = shape.clone().requires_grad_(True), pose.clone().requires_grad_(True)
-        out = anny_model(s, p, root, transl, index)
-        vertices = out.vertices if index is not None else out.vertices[:, subset]
+        if index == "anny":
+            verts, joints, _ = anny_model._posed_canonical(s, p)  # Anny's forward: no subset
+            keypoints = torch.einsum("kv,bvd->bkd", anny_model.kp_weights.to(verts.dtype), verts)
+            R = roma.rotvec_to_rotmat(root).transpose(1, 2)
+            out = BodyOutput(*(x @ R + transl[:, None] for x in (verts, joints, keypoints)))
+        else:
+            out = anny_model(s, p, root, transl, index)
+        vertices = out.vertices if index is subset else out.vertices[:, subset]
         (vertices.square().sum() + out.keypoints.square().sum()).backward()
         outputs.append((vertices, out.joints, out.keypoints, s.grad, p.grad))
-    for full, part in zip(*outputs, strict=True):
-        assert torch.allclose(full, part, atol=1e-4, rtol=1e-4)
+    for reference, full, part in zip(*outputs, strict=True):
+        assert torch.allclose(reference, full, atol=1e-4, rtol=1e-4)
+        assert torch.allclose(reference, part, atol=1e-4, rtol=1e-4)
 
 
 def test_anny_parts_cover_every_part(anny_model):

@@ -88,6 +88,7 @@ class AnnyBody(BodyModel):
         model.requires_grad_(False)
         self.anny = model
         self._subset_cache: list[_VertexSubset] = []  # most recent first, see `_subset`
+        self._every_vertex: _VertexSubset | None = None  # see `_full_subset`
         self._rest_cache: list[tuple] = []  # (subset, shape, rest vertices, bone poses, basis), see `_rest`
         self.shape_names = tuple(model.phenotype_labels)
         self.shape_sigma = shape_sigma
@@ -239,6 +240,19 @@ class AnnyBody(BodyModel):
             keypoints = (keypoints - pelvis[:, None]) @ C
         return verts, joints, keypoints
 
+    def _full_subset(self) -> _VertexSubset:
+        """Every vertex as one subset, built once from Anny's own tensors (no copy): the full forward
+        shapes and skins through the subset path, a third faster than Anny's forward, and with a held
+        shape (a warm fit, the final pass) its rest vertices come from `_rest`'s cache."""
+        if self._every_vertex is None:
+            anny = self.anny
+            weights, bones = anny.vertex_bone_weights, anny.vertex_bone_indices
+            nonzero = (weights != 0).nonzero(as_tuple=True)
+            index = torch.arange(len(anny.template_vertices), device=weights.device)
+            self._every_vertex = _VertexSubset(index, False, anny.template_vertices, anny.blendshapes.contiguous(),
+                                               nonzero[0], bones[nonzero], weights[nonzero], weights, bones)
+        return self._every_vertex
+
     def _subset(self, vertex_index: torch.Tensor) -> _VertexSubset:
         """Anny's per-vertex data for `vertex_index` (n,) or (B, n), cached for the last index tensor: a
         fitting stage passes the same tensor on every step, and slicing 136 blend shapes costs as much as
@@ -322,11 +336,8 @@ class AnnyBody(BodyModel):
         transl: torch.Tensor,
         vertex_index: torch.Tensor | None = None,
     ) -> BodyOutput:
-        if vertex_index is None:
-            verts, joints, _ = self._posed_canonical(shape, pose)
-            keypoints = torch.einsum("kv,bvd->bkd", self.kp_weights.to(verts.dtype), verts)
-        else:
-            verts, joints, keypoints = self._posed_canonical(shape, pose, self._subset(vertex_index))
+        subset = self._full_subset() if vertex_index is None else self._subset(vertex_index)
+        verts, joints, keypoints = self._posed_canonical(shape, pose, subset)
         R = roma.rotvec_to_rotmat(root_orient)  # (B, 3, 3)
         verts = verts @ R.transpose(1, 2) + transl[:, None]
         joints = joints @ R.transpose(1, 2) + transl[:, None]

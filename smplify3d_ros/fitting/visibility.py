@@ -18,22 +18,20 @@ def occluded_parts(scores: np.ndarray, threshold: float) -> np.ndarray:
     return np.array([bool((scores[list(BODY_PARTS[p])] < threshold).any()) for p in PART_NAMES])
 
 
-def face_normals(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals and centres of the faces, (F, 3) each."""
-    tri = vertices[faces]
-    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-    return normals, tri.mean(axis=1)
-
-
 def front_facing(vertices: np.ndarray, faces: np.ndarray, sensor: np.ndarray, threshold: float) -> np.ndarray:
-    """(F,) bool: Eq. 1 from a sensor at `sensor` (3,), same frame as the vertices."""
+    """(F,) bool: Eq. 1 from a sensor at `sensor` (3,), same frame as the vertices. n · p < w is tested
+    as (unnormalized n) · (unnormalized p) < w |n| |p|: no division, and degenerate faces (n = 0) are
+    visible exactly when 0 < w, as with unit vectors."""
     if threshold <= -1.0:
         return np.ones(len(faces), dtype=bool)
-    normals, centres = face_normals(vertices, faces)
-    rays = centres - sensor
-    rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
-    return (normals * rays).sum(axis=1) < threshold
+    v0, v1, v2 = (vertices[faces[:, k]] for k in range(3))
+    normals = np.cross(v1 - v0, v2 - v0)
+    rays = (v0 + v1 + v2) * (1.0 / 3.0) - sensor
+    dot = np.einsum("ij,ij->i", normals, rays)
+    if threshold == 0.0:
+        return dot < 0.0
+    scale = np.sqrt(np.einsum("ij,ij->i", normals, normals) * np.einsum("ij,ij->i", rays, rays))
+    return dot < threshold * np.maximum(scale, 1e-24)
 
 
 def visible_vertices(
