@@ -380,10 +380,18 @@ def _w(weight: float, profile: OptimizerProfile) -> float:
 
 
 # -- the iterations --------------------------------------------------------------------------------------
-def normal_equations(model: BodyModel, state, problem, stage, profile: OptimizerProfile, layout: Layout,
-                     translated=None) -> Residuals:
+def linearize_stage(model: BodyModel, state, problem, stage, layout: Layout, translated=None) -> Linearized:
+    """`linearize` with the vertices the stage's L_3D uses (none without it)."""
     use_chamfer = stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
-    body = linearize(model, state, problem, use_chamfer, layout, translated)
+    return linearize(model, state, problem, use_chamfer, layout, translated)
+
+
+def normal_equations(model: BodyModel, state, problem, stage, profile: OptimizerProfile, layout: Layout,
+                     translated=None, body: Linearized | None = None) -> Residuals:
+    """JᵀJ and Jᵀr of the stage at `state`; `body`: its linearization there, when already made."""
+    use_chamfer = stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
+    if body is None:
+        body = linearize(model, state, problem, use_chamfer, layout, translated)
     acc = Residuals(state.pose.shape[0], layout.size, state.pose.device)
     keypoint_block(body, problem, stage, acc)
     if use_chamfer:

@@ -60,6 +60,17 @@ class _Translated:
         return BodyOutput(self.base.vertices + shift, self.base.joints + shift, self.base.keypoints + shift)
 
 
+class _Posed:
+    """Stand-in for the body model that returns a body already posed (a `solver.Linearized`): the loss of
+    the state a step is linearized at, without posing it twice."""
+
+    def __init__(self, body: solver.Linearized) -> None:
+        self.body = body
+
+    def __call__(self, shape, pose, root_orient, transl) -> BodyOutput:
+        return BodyOutput(self.body.vertices, self.body.keypoints, self.body.keypoints)  # joints: unused
+
+
 def stage_loss(
     model: BodyModel, state: FitState, problem: FitProblem, stage: StageSpec, profile: OptimizerProfile,
     body=None,
@@ -184,8 +195,12 @@ def _run_lm(
     the person (flagged diverged). Each person stops once its loss fell by less than `early_stop_rel_tol`
     over the last `early_stop_patience` iterations, or once no step with a bearable damping lowers it."""
     layout = solver.Layout.of(model, stage.params, state.pose.device)
+    # Each candidate is linearized where its loss is taken: an accepted step's linearization is the next
+    # iteration's (one body pass per iteration instead of two). A translation-only stage poses no body.
+    relinearize = body is None
     with torch.no_grad():
-        cost = stage_loss(model, state, problem, stage, profile, body)
+        here = solver.linearize_stage(model, state, problem, stage, layout) if relinearize else None
+        cost = stage_loss(model, state, problem, stage, profile, _Posed(here) if relinearize else body)
     diverged |= ~torch.isfinite(cost)
     active = ~diverged.clone()
     damping = torch.full_like(cost, profile.lm_damping)
@@ -194,12 +209,16 @@ def _run_lm(
     for _ in range(stage.iterations):
         if not active.any():
             break
-        system = solver.normal_equations(model, state, problem, stage, profile, layout, body)
-        candidate = solver.apply_step(state, solver.damped_step(system, layout, damping), layout)
+        system = solver.normal_equations(model, state, problem, stage, profile, layout, body, here)
+        step = solver.damped_step(system, layout, damping) * active[:, None]  # people done keep their state
+        candidate = solver.apply_step(state, step, layout)
         with torch.no_grad():
-            new_cost = stage_loss(model, candidate, problem, stage, profile, body)
+            there = solver.linearize_stage(model, candidate, problem, stage, layout) if relinearize else None
+            new_cost = stage_loss(model, candidate, problem, stage, profile, _Posed(there) if relinearize else body)
         better = active & torch.isfinite(new_cost) & (new_cost < cost)
         state.copy_rows_from(candidate, better)
+        if relinearize:  # the state is the candidate where a step was taken or nobody moved, else mixed
+            here = there if bool((better | ~active).all()) else None if bool(better.any()) else here
         cost = torch.where(better, new_cost, cost)
         damping = torch.where(better, damping / solver.DAMPING_DOWN, damping * solver.DAMPING_UP)
         history.append(cost)
