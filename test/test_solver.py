@@ -82,6 +82,11 @@ def test_prior_jacobians_match_autodiff(anny_model):
         if name == "upright":
             auto = auto[..., :3]
         assert torch.allclose(J.double(), auto, atol=1e-6), name
+    r, blocks = solver.held_linearized(pose, init)  # unmasked: per-joint blocks, masked by the caller
+    masked_r, masked_J = solver.held_linearized(pose, init, mask)
+    root = mask.sqrt()
+    assert torch.allclose((r.unflatten(1, (-1, 3)) * root[..., None]).flatten(1), masked_r)
+    assert torch.allclose(solver._block_diagonal(blocks * root[..., None, None]), masked_J)
     # the residuals' squares are the priors the Adam path uses
     assert torch.allclose((solver.range_prior_linearized(model, pose)[0] ** 2).sum(-1), model.pose_prior(pose))
     assert torch.allclose((solver.bending_linearized(model, pose)[0] ** 2).sum(-1), model.bending_prior(pose))

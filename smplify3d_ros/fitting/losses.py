@@ -139,9 +139,14 @@ def occlusion_prior(pose: torch.Tensor, init_pose: torch.Tensor, joint_mask: tor
     pose, init_pose: (B, J, 3) axis-angle; joint_mask: (B, J) true where the joint drives an occluded
     part. Squaring the quaternion dot product makes q and −q equal.
     """
+    return (held_rotation(pose, init_pose) * joint_mask).sum(-1)
+
+
+def held_rotation(pose: torch.Tensor, init_pose: torch.Tensor) -> torch.Tensor:
+    """(B, J) 1 − ⟨q_i, q'_i⟩² per joint: L_θocc's term before the occlusion mask picks joints."""
     q = roma.rotvec_to_unitquat(pose)
     q0 = roma.rotvec_to_unitquat(init_pose)
-    return ((1.0 - (q * q0).sum(-1) ** 2) * joint_mask).sum(-1)
+    return 1.0 - (q * q0).sum(-1) ** 2
 
 
 def keypoint_depth_loss(keypoints: torch.Tensor, target: torch.Tensor, sigma: float) -> torch.Tensor:

@@ -259,9 +259,12 @@ def prior_block(model: BodyModel, state, problem, stage, profile: OptimizerProfi
         _add_pose_terms(terms, B, layout, profile, acc)
         return
     occluded = problem.occluded_joints
-    terms.append((w.occlusion, *held_linearized(pose, problem.init_pose, occluded)))
-    if w.init_pose > 0:
-        terms.append((w.init_pose, *held_linearized(pose, problem.init_pose, 1.0 - occluded)))
+    r, d = held_linearized(pose, problem.init_pose)  # both holds share the rotations, not the joints
+    for weight, mask in ((w.occlusion, occluded), (w.init_pose, 1.0 - occluded)):
+        if weight > 0:
+            root = mask.sqrt()
+            terms.append((weight, (r.unflatten(1, (-1, 3)) * root[..., None]).flatten(1),
+                          _block_diagonal(d * root[..., None, None])))
     _add_pose_terms(terms, B, layout, profile, acc)
 
 
@@ -340,20 +343,24 @@ def bending_linearized(model: BodyModel, pose: torch.Tensor) -> tuple[torch.Tens
     return r, J.flatten(2)
 
 
-def held_linearized(pose: torch.Tensor, init_pose: torch.Tensor, mask: torch.Tensor):
+def held_linearized(pose: torch.Tensor, init_pose: torch.Tensor, mask: torch.Tensor | None = None):
     """√mask · vec(q₀⁻¹ q) (B, 3J), whose squared norms are 1 − ⟨q, q₀⟩² (`losses.occlusion_prior`), and
-    the Jacobian (B, 3J, 3J): q(θ + dθ) = (½ J_l dθ, 0) ⊗ q to first order."""
+    the Jacobian: q(θ + dθ) = (½ J_l dθ, 0) ⊗ q to first order. With `mask` (B, J) the Jacobian is
+    (B, 3J, 3J); without, the residuals are unmasked and the Jacobian is its per-joint blocks
+    (B, J, 3, 3), for the caller to mask."""
     from smplify3d_ros.body.base import left_jacobian_so3
 
     q = roma.rotvec_to_unitquat(pose)  # (B, J, 4) xyzw
     q0_inv = roma.quat_conjugation(roma.rotvec_to_unitquat(init_pose))
-    root = mask.sqrt()[..., None]
-    r = roma.quat_product(q0_inv, q)[..., :3] * root
+    r = roma.quat_product(q0_inv, q)[..., :3]
     omega = 0.5 * left_jacobian_so3(pose).transpose(-1, -2)  # (B, J, 3 columns, 3)
     omega_q = torch.cat([omega, torch.zeros_like(omega[..., :1])], -1)  # pure quaternions
     d = roma.quat_product(q0_inv[:, :, None], roma.quat_product(omega_q, q[:, :, None].expand_as(omega_q)))
-    d = d[..., :3].transpose(-1, -2) * root[..., None]  # (B, J, 3 residual, 3 column)
-    return r.flatten(1), _block_diagonal(d)
+    d = d[..., :3].transpose(-1, -2)  # (B, J, 3 residual, 3 column)
+    if mask is None:
+        return r.flatten(1), d
+    root = mask.sqrt()[..., None]
+    return (r * root).flatten(1), _block_diagonal(d * root[..., None])
 
 
 def _block_diagonal(blocks: torch.Tensor) -> torch.Tensor:

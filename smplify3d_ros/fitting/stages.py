@@ -96,14 +96,12 @@ def stage_loss(
         if weights.upright > 0 and problem.up is not None:
             loss = loss + _w(weights.upright, profile) * (losses.upright_residuals(
                 state.root_orient, problem.up) ** 2).sum(-1)
-    if stage.priors and stage.hold:
-        loss = loss + _w(weights.occlusion, profile) * losses.occlusion_prior(
-            state.pose, problem.init_pose, problem.occluded_joints
-        )
+    if stage.priors and stage.hold:  # L_θocc on occluded parts' joints, the init-pose hold on the others
+        held = losses.held_rotation(state.pose, problem.init_pose)
+        occluded = problem.occluded_joints
+        loss = loss + _w(weights.occlusion, profile) * (held * occluded).sum(-1)
         if weights.init_pose > 0:
-            loss = loss + _w(weights.init_pose, profile) * losses.occlusion_prior(
-                state.pose, problem.init_pose, 1.0 - problem.occluded_joints
-            )
+            loss = loss + _w(weights.init_pose, profile) * (held * (1.0 - occluded)).sum(-1)
     if weights.image_depth > 0 and "transl" in stage.params and problem.init_transl is not None:
         loss = loss + _w(weights.image_depth, profile) * (losses.depth_hold_residuals(
             state.transl, problem.init_transl, problem.use_lidar) ** 2)
