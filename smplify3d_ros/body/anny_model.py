@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from functools import cached_property
 
 import roma
 import torch
@@ -59,6 +60,11 @@ _FULL_SUBSET_MAX_BODIES = 3
 _INTERNAL_SEGMENTS = ("eye_back.L", "eye_back.R", "eye_cavity.L", "eye_cavity.R", "mouth_cavity", "tongue")
 
 
+def _same(a: torch.Tensor, b: torch.Tensor) -> bool:
+    """Two shape tensors with the same size and values."""
+    return a.shape == b.shape and torch.equal(a, b)
+
+
 @dataclass(frozen=True)
 class _VertexSubset:
     """Anny's per-vertex tensors restricted to the caller's vertices: one set shared by the batch
@@ -68,7 +74,7 @@ class _VertexSubset:
     key: torch.Tensor  # the caller's vertex index tensor this subset was built for (cache key)
     per_row: bool
     template: torch.Tensor  # (n, 3), per row (B, n, 3): template positions
-    blendshapes: torch.Tensor  # (C, n, 3), per row (C, B, n, 3): blend-shape offsets
+    all_blendshapes: torch.Tensor  # (C, V, 3) Anny's, of which `blendshapes` are the subset's rows
     # the vertices' skinning influences, packed (Anny stores 9 per vertex, 2.5 non-zero on average)
     vertex: torch.Tensor  # (E,) the vertex of each non-zero influence (per row: flat, row * n + vertex)
     bone: torch.Tensor  # (E,) its bone (per row: flat, row * bones + bone)
@@ -76,6 +82,18 @@ class _VertexSubset:
     # ... and per vertex, for the rows whose Jacobian a solver asks for
     slot_weight: torch.Tensor  # (n, 9), per row (B, n, 9): skinning weights (Anny's slots)
     slot_bone: torch.Tensor  # (n, 9), per row (B, n, 9): their bones
+    every_vertex: bool = False  # the subset is the whole mesh, in Anny's order
+
+    @cached_property
+    def blendshapes(self) -> torch.Tensor:
+        """(C, n, 3), per row (C, B, n, 3): the subset's blend-shape offsets, sliced when a shaping first
+        needs them (a held shape's subsets never do: `AnnyBody._hold_rest`)."""
+        if self.every_vertex:
+            return self.all_blendshapes
+        if not self.per_row:
+            return self.all_blendshapes[:, self.key].contiguous()
+        rows, n = self.key.shape
+        return self.all_blendshapes[:, self.key.flatten()].reshape(-1, rows, n, 3).contiguous()
 
 
 class AnnyBody(BodyModel):
@@ -93,6 +111,7 @@ class AnnyBody(BodyModel):
         self._subset_cache: list[_VertexSubset] = []  # most recent first, see `_subset`
         self._every_vertex: _VertexSubset | None = None  # see `_full_subset`
         self._rest_cache: list[tuple] = []  # (subset, shape, rest vertices, bone poses, basis), see `_rest`
+        self._held_rest: tuple | None = None  # (shape, all rest vertices, keypoint support's, ...): `_hold_rest`
         self.shape_names = tuple(model.phenotype_labels)
         self.shape_sigma = shape_sigma
         self.shape_bound_weight = shape_bound_weight
@@ -253,13 +272,14 @@ class AnnyBody(BodyModel):
             nonzero = (weights != 0).nonzero(as_tuple=True)
             index = torch.arange(len(anny.template_vertices), device=weights.device)
             self._every_vertex = _VertexSubset(index, False, anny.template_vertices, anny.blendshapes.contiguous(),
-                                               nonzero[0], bones[nonzero], weights[nonzero], weights, bones)
+                                               nonzero[0], bones[nonzero], weights[nonzero], weights, bones,
+                                               every_vertex=True)
         return self._every_vertex
 
     def _subset(self, vertex_index: torch.Tensor) -> _VertexSubset:
         """Anny's per-vertex data for `vertex_index` (n,) or (B, n), cached for the last index tensor: a
-        fitting stage passes the same tensor on every step, and slicing 136 blend shapes costs as much as
-        using them."""
+        fitting stage passes the same tensor on every step, and slicing 136 blend shapes (done when first
+        needed, `_VertexSubset.blendshapes`) costs as much as using them."""
         for cached in self._subset_cache:
             if cached.key is vertex_index:
                 return cached
@@ -268,13 +288,11 @@ class AnnyBody(BodyModel):
         nonzero = (weights != 0).nonzero(as_tuple=True)
         if vertex_index.dim() == 1:
             vertex, bone = nonzero[0], bones[nonzero]
-            blend = anny.blendshapes[:, vertex_index]
         else:
-            rows, n = vertex_index.shape
+            n = vertex_index.shape[1]
             vertex, bone = nonzero[0] * n + nonzero[1], nonzero[0] * len(anny.bone_labels) + bones[nonzero]
-            blend = anny.blendshapes[:, vertex_index.flatten()].reshape(-1, rows, n, 3)
         subset = _VertexSubset(vertex_index, vertex_index.dim() == 2, anny.template_vertices[vertex_index],
-                               blend.contiguous(), vertex, bone, weights[nonzero], weights, bones)
+                               anny.blendshapes, vertex, bone, weights[nonzero], weights, bones)
         # a few recent sets: a fit alternates between keypoints only, its L_3D vertices and the shape
         # Jacobian's copies, and rebuilding a set costs as much as a forward pass
         self._subset_cache = [subset, *self._subset_cache[: _CACHED_SUBSETS - 1]]
@@ -284,19 +302,43 @@ class AnnyBody(BodyModel):
         """Rest vertices (B, n_kp + n, 3: the keypoint support, then the subset's), rest bone poses and the
         keypoint basis of phenotypes `shape` (B, S), kept for the last shape values and subset: stages that
         move pose or position only (most of a fit) call the model with the same shape at every step, and
-        shaping is half of a forward pass."""
-        if not shape.requires_grad:
-            for cached in self._rest_cache:
-                if cached[0] is subset and cached[1].shape == shape.shape and torch.equal(cached[1], shape):
-                    return cached[2:]
+        shaping is half of a forward pass; a shape asked for with several vertex sets is kept whole
+        (`_hold_rest`)."""
+        if shape.requires_grad:
+            return self._shaped(shape, subset)
+        for cached in self._rest_cache:
+            if cached[0] is subset and _same(cached[1], shape):
+                return cached[2:]
+        held = self._held_rest
+        if held is not None and _same(held[0], shape):  # a held shape, another vertex set: rows of its mesh
+            full, kp_rest, rest_bone_poses, basis = held[1:]
+            index = subset.key if subset.per_row else subset.key.expand(full.shape[0], -1)
+            rows = torch.gather(full, 1, index[..., None].expand(-1, -1, 3))
+            result = (torch.cat([kp_rest, rows], 1), rest_bone_poses, basis)
+        else:
+            result = self._shaped(shape, subset)
+            if self.anny.bone_orientation == "cached" and any(_same(c[1], shape) for c in self._rest_cache):
+                self._hold_rest(shape, *result)  # the second vertex set of one shape: shape the whole mesh
+        entry = (subset, shape.detach().clone(), *result)
+        self._rest_cache = [entry, *self._rest_cache[: _CACHED_SUBSETS - 1]]
+        return result
+
+    def _shaped(self, shape: torch.Tensor, subset: _VertexSubset) -> tuple[torch.Tensor, ...]:
         no_changes = shape.new_zeros(shape.shape[0], 0)
         coeffs = self.anny._get_phenotype_blendshape_coefficients(shape, no_changes, no_changes)
         rest_vertices, rest_bone_poses = self._rest_subset(coeffs, subset)
-        basis = self._keypoint_basis(rest_vertices)
-        if not shape.requires_grad:
-            entry = (subset, shape.detach().clone(), rest_vertices, rest_bone_poses, basis)
-            self._rest_cache = [entry, *self._rest_cache[: _CACHED_SUBSETS - 1]]
-        return rest_vertices, rest_bone_poses, basis
+        return rest_vertices, rest_bone_poses, self._keypoint_basis(rest_vertices)
+
+    def _hold_rest(self, shape: torch.Tensor, rest_vertices: torch.Tensor, rest_bone_poses: torch.Tensor,
+                   basis: torch.Tensor) -> None:
+        """Keep every rest vertex of a shape asked for with a second vertex set (a warm fit's held shape,
+        whose stages, checks and outputs pose several sets): later sets are rows of it, not a new shaping
+        (136 blend shapes sliced and applied). Shapes that change at every step never get here twice."""
+        no_changes = shape.new_zeros(shape.shape[0], 0)
+        coeffs = self.anny._get_phenotype_blendshape_coefficients(shape, no_changes, no_changes)
+        full = self.anny.template_vertices + torch.einsum("bc,cnd->bnd", coeffs, self.anny.blendshapes)
+        kp_rest = rest_vertices[:, : len(self.kp_support)]
+        self._held_rest = (shape.detach().clone(), full, kp_rest, rest_bone_poses, basis)
 
     def _rest_subset(self, coeffs: torch.Tensor, subset: _VertexSubset) -> tuple[torch.Tensor, torch.Tensor]:
         """Rest vertices (keypoint support, then `subset`'s) and rest bone poses for blend-shape `coeffs`.
