@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 
@@ -21,9 +22,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+_STDERR: int | None = None  # the terminal's stderr, kept while a replay runs (see `_terminated`)
+
+
 def _terminated(signum: int, frame: object) -> None:
-    """SIGTERM unwinds like Ctrl-C, so that the partial output is removed."""
-    raise KeyboardInterrupt
+    """SIGTERM (systemd, docker stop): the partial outputs are removed and the command exits 130 at once,
+    wherever it was. Unwinding from inside a library's initialization (the body model's, whose output is
+    then redirected) did not reliably end the process with 130, so nothing is unwound."""
+    from smplify3d_ros.replay.output import discard_all
+
+    discard_all()
+    if _STDERR is not None:
+        os.write(_STDERR, b"smplify3d replay: interrupted\n")
+    os._exit(130)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -34,7 +45,9 @@ def run(args: argparse.Namespace) -> int:
     from smplify3d_ros.settings import ConfigError
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    global _STDERR
     try:
+        _STDERR = os.dup(2)
         previous = signal.signal(signal.SIGTERM, _terminated)
     except ValueError:  # not the main thread: leave signals alone
         previous = None
@@ -47,6 +60,9 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+        if _STDERR is not None:
+            os.close(_STDERR)
+            _STDERR = None
     print(summary.text())
     return 0 if summary.frames_published > 0 else 1
 

@@ -82,6 +82,7 @@ class Output:
 
     def commit(self) -> None:
         """Put the complete output in place (replacing what `prepare_output` allowed to replace)."""
+        _IN_THE_MAKING.pop(id(self), None)
         old = None
         if self.target.is_dir() and not self.target.is_symlink() and any(self.target.iterdir()):
             old = Path(tempfile.mkdtemp(prefix=f"{self.target.name}.replaced-", dir=self.target.parent))
@@ -92,10 +93,20 @@ class Output:
 
     def discard(self) -> None:
         """Remove the incomplete output (created by this run; after `commit` there is none)."""
+        _IN_THE_MAKING.pop(id(self), None)
         if self.temp.is_dir() and not self.temp.is_symlink():
             shutil.rmtree(self.temp, ignore_errors=True)
         else:
             self.temp.unlink(missing_ok=True)
+
+
+_IN_THE_MAKING: dict[int, Output] = {}  # the outputs `prepare_output` created and nobody committed yet
+
+
+def discard_all() -> None:
+    """Remove every output still in the making (a terminating signal, `replay.cli`)."""
+    for made in list(_IN_THE_MAKING.values()):
+        made.discard()
 
 
 def _create_temp(parent: Path, prefix: str, directory: bool) -> Path:
@@ -113,12 +124,20 @@ def _create_temp(parent: Path, prefix: str, directory: bool) -> Path:
     raise FileExistsError(f"no free temporary name {prefix}XXXXXX in {parent}")
 
 
-def prepare_output(target: str | Path, inputs: list[Path], overwrite: bool = False,
-                   directory: bool = False) -> Output:
-    """Check `target` (module docstring) and create its temporary; OutputError naming the path if not."""
+def check_output(target: str | Path, inputs: list[Path], overwrite: bool = False,
+                 directory: bool = False) -> Path:
+    """The absolute `target` if it may be written (module docstring), else OutputError naming the path;
+    creates nothing."""
     target = Path(os.path.abspath(Path(target).expanduser()))
     _check_inputs(target, inputs)
     _check_existing(target, directory, overwrite)
+    return target
+
+
+def prepare_output(target: str | Path, inputs: list[Path], overwrite: bool = False,
+                   directory: bool = False) -> Output:
+    """Check `target` (`check_output`) and create its temporary; OutputError naming the path if not."""
+    target = check_output(target, inputs, overwrite, directory)
     parent = target.parent
     blocking = next((p for p in (parent, *parent.parents) if p.exists() and not p.is_dir()), None)
     if blocking is not None:
@@ -129,4 +148,6 @@ def prepare_output(target: str | Path, inputs: list[Path], overwrite: bool = Fal
     except OSError as e:
         where = f" ({e.filename})" if e.filename and Path(e.filename) in target.parents else ""
         raise OutputError(f"cannot write {target}: {e.strerror or e}{where}") from None
-    return Output(target, temp, directory)
+    made = Output(target, temp, directory)
+    _IN_THE_MAKING[id(made)] = made
+    return made

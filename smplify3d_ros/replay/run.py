@@ -19,7 +19,7 @@ import numpy as np
 
 from msg_adapters import clip
 from smplify3d_ros.config import load_config
-from smplify3d_ros.replay.output import Output, OutputError, prepare_output
+from smplify3d_ros.replay.output import Output, OutputError, check_output, prepare_output
 from smplify3d_ros.replay.picture import PictureChooser
 from smplify3d_ros.replay.reader import BagReader, BagStep, ReplayError
 from smplify3d_ros.replay.sources import READ_BAD_TRUTH
@@ -30,8 +30,8 @@ from smplify3d_ros.runtime.stats import DiagnosticsReporter
 from smplify3d_ros.runtime.sync import sync_values
 from smplify3d_ros.runtime.transforms import Transforms
 
-if TYPE_CHECKING:  # the processor and the scorer load torch: imported when a run starts, so that a
-    # refused output or a missing bag is reported at once
+if TYPE_CHECKING:  # the processor and the scorer load torch: imported once a run's outputs are checked,
+    # so that a refused output or a missing bag is reported at once
     from smplify3d_ros.runtime.processor import FrameResult, MessageProcessor
 
 OUTPUT_TOPICS = {name: f"/{NODE_NAME}/{name}" for name in OUTPUTS}
@@ -277,6 +277,13 @@ def replay_bag(
         raise OutputError(f"{png}: a picture file name must end in one of {', '.join(PICTURE_SUFFIXES)}")
     if png is not None and output is not None and Path(png).resolve() == Path(output).resolve():
         raise OutputError(f"{png}: the picture and the output bag need different names")
+    # outputs are checked before anything heavy loads (a refusal is reported at once), and their partial
+    # files created once torch is in (an interrupt while it loads leaves nothing to clean up)
+    for target, directory in ((output, output is not None and Path(output).suffix != ".mcap"), (png, False)):
+        if target is not None:
+            check_output(target, _inputs(bag), overwrite, directory)
+    from smplify3d_ros.runtime.processor import MessageProcessor  # noqa: F401 - loads torch, see above
+
     outputs: list[Output] = []
     try:  # checked before anything is fitted: a run must not fail at its end for its output's sake
         out = None if output is None else prepare_output(output, _inputs(bag), overwrite,
