@@ -255,7 +255,11 @@ def optimize(
     report = StageReport()
     diverged = torch.zeros_like(problem.use_lidar)
     final = None
-    for stage in stage_plan(profile):
+    plan = stage_plan(profile)
+    for k, stage in enumerate(plan):
+        if stage.iterations == 0 and k < len(plan) - 1:  # nothing to run; a later stage gives the loss
+            report.iterations[stage.name] = 0
+            continue
         report.iterations[stage.name], final = run_stage(
             model, state, problem, stage, profile, divergence_factor, diverged
         )
