@@ -268,13 +268,22 @@ class AnnyBody(BodyModel):
         held shape (a warm fit, the final pass) its rest vertices come from `_rest`'s cache."""
         if self._every_vertex is None:
             anny = self.anny
-            weights, bones = anny.vertex_bone_weights, anny.vertex_bone_indices
-            nonzero = (weights != 0).nonzero(as_tuple=True)
-            index = torch.arange(len(anny.template_vertices), device=weights.device)
-            self._every_vertex = _VertexSubset(index, False, anny.template_vertices, anny.blendshapes.contiguous(),
-                                               nonzero[0], bones[nonzero], weights[nonzero], weights, bones,
-                                               every_vertex=True)
+            index = torch.arange(len(anny.template_vertices), device=anny.template_vertices.device)
+            self._every_vertex = self._make_subset(index, anny.template_vertices, anny.vertex_bone_weights,
+                                                   anny.vertex_bone_indices, every_vertex=True)
         return self._every_vertex
+
+    def _make_subset(self, key: torch.Tensor, template: torch.Tensor, weights: torch.Tensor,
+                     bones: torch.Tensor, every_vertex: bool = False) -> _VertexSubset:
+        """The subset of vertex index `key` (n,) or (B, n) from its rows of Anny's per-vertex tensors."""
+        nonzero = (weights != 0).nonzero(as_tuple=True)
+        if key.dim() == 1:
+            vertex, bone = nonzero[0], bones[nonzero]
+        else:
+            n = key.shape[1]
+            vertex, bone = nonzero[0] * n + nonzero[1], nonzero[0] * len(self.anny.bone_labels) + bones[nonzero]
+        return _VertexSubset(key, key.dim() == 2, template, self.anny.blendshapes, vertex, bone, weights[nonzero],
+                             weights, bones, every_vertex)
 
     def _subset(self, vertex_index: torch.Tensor) -> _VertexSubset:
         """Anny's per-vertex data for `vertex_index` (n,) or (B, n), cached for the last index tensor: a
@@ -284,15 +293,8 @@ class AnnyBody(BodyModel):
             if cached.key is vertex_index:
                 return cached
         anny = self.anny
-        weights, bones = anny.vertex_bone_weights[vertex_index], anny.vertex_bone_indices[vertex_index]
-        nonzero = (weights != 0).nonzero(as_tuple=True)
-        if vertex_index.dim() == 1:
-            vertex, bone = nonzero[0], bones[nonzero]
-        else:
-            n = vertex_index.shape[1]
-            vertex, bone = nonzero[0] * n + nonzero[1], nonzero[0] * len(anny.bone_labels) + bones[nonzero]
-        subset = _VertexSubset(vertex_index, vertex_index.dim() == 2, anny.template_vertices[vertex_index],
-                               anny.blendshapes, vertex, bone, weights[nonzero], weights, bones)
+        subset = self._make_subset(vertex_index, anny.template_vertices[vertex_index],
+                                   anny.vertex_bone_weights[vertex_index], anny.vertex_bone_indices[vertex_index])
         # a few recent sets: a fit alternates between keypoints only, its L_3D vertices and the shape
         # Jacobian's copies, and rebuilding a set costs as much as a forward pass
         self._subset_cache = [subset, *self._subset_cache[: _CACHED_SUBSETS - 1]]
@@ -305,7 +307,7 @@ class AnnyBody(BodyModel):
         shaping is half of a forward pass; a shape asked for with several vertex sets is kept whole
         (`_hold_rest`)."""
         if shape.requires_grad:
-            return self._shaped(shape, subset)
+            return self._shaped(self._coefficients(shape), subset)
         for cached in self._rest_cache:
             if cached[0] is subset and _same(cached[1], shape):
                 return cached[2:]
@@ -316,26 +318,28 @@ class AnnyBody(BodyModel):
             rows = torch.gather(full, 1, index[..., None].expand(-1, -1, 3))
             result = (torch.cat([kp_rest, rows], 1), rest_bone_poses, basis)
         else:
-            result = self._shaped(shape, subset)
+            coeffs = self._coefficients(shape)
+            result = self._shaped(coeffs, subset)
             if self.anny.bone_orientation == "cached" and any(_same(c[1], shape) for c in self._rest_cache):
-                self._hold_rest(shape, *result)  # the second vertex set of one shape: shape the whole mesh
+                self._hold_rest(shape, coeffs, *result)  # the second vertex set of one shape: shape it whole
         entry = (subset, shape.detach().clone(), *result)
         self._rest_cache = [entry, *self._rest_cache[: _CACHED_SUBSETS - 1]]
         return result
 
-    def _shaped(self, shape: torch.Tensor, subset: _VertexSubset) -> tuple[torch.Tensor, ...]:
+    def _coefficients(self, shape: torch.Tensor) -> torch.Tensor:
+        """Anny's blend-shape coefficients of phenotypes `shape` (B, S)."""
         no_changes = shape.new_zeros(shape.shape[0], 0)
-        coeffs = self.anny._get_phenotype_blendshape_coefficients(shape, no_changes, no_changes)
+        return self.anny._get_phenotype_blendshape_coefficients(shape, no_changes, no_changes)
+
+    def _shaped(self, coeffs: torch.Tensor, subset: _VertexSubset) -> tuple[torch.Tensor, ...]:
         rest_vertices, rest_bone_poses = self._rest_subset(coeffs, subset)
         return rest_vertices, rest_bone_poses, self._keypoint_basis(rest_vertices)
 
-    def _hold_rest(self, shape: torch.Tensor, rest_vertices: torch.Tensor, rest_bone_poses: torch.Tensor,
-                   basis: torch.Tensor) -> None:
+    def _hold_rest(self, shape: torch.Tensor, coeffs: torch.Tensor, rest_vertices: torch.Tensor,
+                   rest_bone_poses: torch.Tensor, basis: torch.Tensor) -> None:
         """Keep every rest vertex of a shape asked for with a second vertex set (a warm fit's held shape,
         whose stages, checks and outputs pose several sets): later sets are rows of it, not a new shaping
         (136 blend shapes sliced and applied). Shapes that change at every step never get here twice."""
-        no_changes = shape.new_zeros(shape.shape[0], 0)
-        coeffs = self.anny._get_phenotype_blendshape_coefficients(shape, no_changes, no_changes)
         full = self.anny.template_vertices + torch.einsum("bc,cnd->bnd", coeffs, self.anny.blendshapes)
         kp_rest = rest_vertices[:, : len(self.kp_support)]
         self._held_rest = (shape.detach().clone(), full, kp_rest, rest_bone_poses, basis)

@@ -210,7 +210,7 @@ def _alignment_weights(confidence: torch.Tensor, align: str) -> torch.Tensor:
 def chamfer_block(body: Linearized, problem, stage, profile: OptimizerProfile, layout: Layout,
                   acc: Residuals) -> None:
     """L_3D's residuals: each point to its nearest visible vertex (and back, with the vertex weight)."""
-    if stage.chamfer_weight <= 0 or problem.vertex_index.shape[1] == 0:
+    if not uses_chamfer(stage, problem):
         return
     weight = _w(stage.chamfer_weight, profile) * problem.use_lidar.to(body.vertices.dtype)  # (B,)
     vmask, points, pmask = problem.vertex_mask, problem.points, problem.point_mask
@@ -387,18 +387,22 @@ def _w(weight: float, profile: OptimizerProfile) -> float:
 
 
 # -- the iterations --------------------------------------------------------------------------------------
+def uses_chamfer(stage, problem) -> bool:
+    """Whether the stage has L_3D: a weight, and vertices to pose for it."""
+    return stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
+
+
 def linearize_stage(model: BodyModel, state, problem, stage, layout: Layout, translated=None) -> Linearized:
     """`linearize` with the vertices the stage's L_3D uses (none without it)."""
-    use_chamfer = stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
-    return linearize(model, state, problem, use_chamfer, layout, translated)
+    return linearize(model, state, problem, uses_chamfer(stage, problem), layout, translated)
 
 
 def normal_equations(model: BodyModel, state, problem, stage, profile: OptimizerProfile, layout: Layout,
                      translated=None, body: Linearized | None = None) -> Residuals:
     """JᵀJ and Jᵀr of the stage at `state`; `body`: its linearization there, when already made."""
-    use_chamfer = stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
+    use_chamfer = uses_chamfer(stage, problem)
     if body is None:
-        body = linearize(model, state, problem, use_chamfer, layout, translated)
+        body = linearize_stage(model, state, problem, stage, layout, translated)
     acc = Residuals(state.pose.shape[0], layout.size, state.pose.device)
     keypoint_block(body, problem, stage, acc)
     if use_chamfer:

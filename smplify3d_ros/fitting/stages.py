@@ -77,7 +77,7 @@ def stage_loss(
 ) -> torch.Tensor:
     """(B,) total loss of one stage. `body` replaces `model`'s forward (see `_Translated`)."""
     weights: LossWeights = profile.weights
-    use_chamfer = stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
+    use_chamfer = solver.uses_chamfer(stage, problem)
     shape = model.shape_from_free(state.shape)
     args = (shape, state.pose, state.root_orient, state.transl)
     out = body(*args) if body is not None else posed_rows(model, args, problem, use_chamfer)
@@ -215,8 +215,10 @@ def _run_lm(
             new_cost = stage_loss(model, candidate, problem, stage, profile, _Posed(there) if relinearize else body)
         better = active & torch.isfinite(new_cost) & (new_cost < cost)
         state.copy_rows_from(candidate, better)
-        if relinearize:  # the state is the candidate where a step was taken or nobody moved, else mixed
-            here = there if bool((better | ~active).all()) else None if bool(better.any()) else here
+        if relinearize and bool(better.any()):  # no step taken: `here` still linearizes the state
+            # where every active person stepped (the others did not move) the state is the candidate;
+            # after a mix of taken and refused steps it is neither, and the next iteration linearizes it
+            here = there if bool((better | ~active).all()) else None
         cost = torch.where(better, new_cost, cost)
         damping = torch.where(better, damping / solver.DAMPING_DOWN, damping * solver.DAMPING_UP)
         history.append(cost)
