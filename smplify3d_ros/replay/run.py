@@ -312,7 +312,7 @@ def _run(bag: Path, out: Output | None, picture: Output | None, progress: bool, 
     with BagReader(bag, node_config, log) as reader:
         processor = MessageProcessor(config, node_config, RosbagsFactory(reader.typestore), fitter=fitter,
                                      transforms=Transforms(node_config.extrinsic, reader.tf.lookup, log=log),
-                                     log=log, keep_frames=picture is not None)
+                                     log=log, keep_frames=picture is not None, build_outputs=out is not None)
         writer = None if out is None else _open_writer(out, reader)
         replay = _Replay(reader, processor, writer, summary, picture is not None, node_config.diagnostics_period_s)
         bar = tqdm(total=reader.message_count, unit="msg", disable=not progress, desc=bag.name, file=sys.stderr)

@@ -103,6 +103,7 @@ class MessageProcessor:
         transforms: Transforms | None = None,
         log: Any = None,
         keep_frames: bool = False,
+        build_outputs: bool = True,
     ) -> None:
         self.config = config
         self.node = node
@@ -115,6 +116,7 @@ class MessageProcessor:
         self.outputs = OutputBuilder(node.publish, self.fitter.faces_np, self.factory,
                                      HriSettings(node.topics.hri_bodies))
         self.keep_frames = keep_frames
+        self.build_outputs = build_outputs  # False: fits only (a replay without an output bag)
         self.stats = ProcessorStats(latency_window=node.diagnostics.latency_window)
         self.stats.tracking = None if self.tracker is None else self.tracker.stats
         self._last_stamp_ns: int | None = None
@@ -237,9 +239,10 @@ class MessageProcessor:
         if not np.allclose(T_out, np.eye(4)):
             fits = [transform_fit(fit, T_out) for fit in fits]
         fits = self._withhold_non_finite(fits)
-        t = time.perf_counter()
-        result.outputs = self.outputs.build(fits, result.stamp, result.frame_id, frame)
-        result.latency["outputs"] = time.perf_counter() - t
+        if self.build_outputs:
+            t = time.perf_counter()
+            result.outputs = self.outputs.build(fits, result.stamp, result.frame_id, frame)
+            result.latency["outputs"] = time.perf_counter() - t
         result.fits = fits
 
     def _withhold_non_finite(self, fits: list[BodyFit]) -> list[BodyFit]:
