@@ -3,6 +3,8 @@ the image's stamp (interpolated between /tf samples), and a frame outside the re
 
 from __future__ import annotations
 
+import dataclasses
+
 import node_support
 import numpy as np
 import pytest
@@ -44,14 +46,22 @@ def bag_with_tf(tmp_path, tf_until_s: float):
     return path, t0
 
 
-def test_output_frame_odom_replays_with_the_recorded_tf(tmp_path):
-    from smplify3d_ros.replay import replay_bag
+class SpreadStubFitter(node_support.StubFitter):
+    """The stub's fits with 17 distinct keypoints (a skeleton-sized spread around the stub's point), so
+    that a rotation of the output frame shows in every axis; the transforms are under test, not the fits."""
 
+    def fit(self, people, K, origin, options=None):
+        spread = np.stack([np.linspace(-0.3, 0.3, 17), np.linspace(-0.9, 0.8, 17), np.cos(np.arange(17))], axis=1)
+        return [dataclasses.replace(f, keypoints3d=(f.keypoints3d + 0.2 * spread).astype(np.float32))
+                for f in super().fit(people, K, origin, options)]
+
+
+def test_output_frame_odom_replays_with_the_recorded_tf(tmp_path):
     path, t0 = bag_with_tf(tmp_path, tf_until_s=2.0)
-    node_cfg = load_node_config(None, {"node": {"output_frame": "odom"}})
-    in_odom = replay_bag(path, tmp_path / "out.mcap", progress=False, config=node_support.config(),
-                         node_config=node_cfg, fitter=node_support.fitter())
-    in_camera = node_support.replayed("mcap")  # the same frames, outputs in the camera frame
+    in_odom = node_support.stub_replay(path, tmp_path / "out.mcap", fitter=SpreadStubFitter(),
+                                       node_config=load_node_config(None, {"node": {"output_frame": "odom"}}))
+    in_camera = node_support.stub_replay(node_support.fixture_bag("mcap").path, fitter=SpreadStubFitter())
+    node_cfg = load_node_config()
     assert in_odom.drops == {} and in_odom.frames_published == in_camera.frames_published == 2
     T_velodyne_cam = node_cfg.extrinsic.T_lidar_cam()
     for odom, cam in zip(in_odom.frames, in_camera.frames, strict=True):
@@ -62,10 +72,6 @@ def test_output_frame_odom_replays_with_the_recorded_tf(tmp_path):
 
 
 def test_a_frame_after_the_recorded_tf_is_a_counted_drop(tmp_path):
-    from smplify3d_ros.replay import replay_bag
-
     path, t0 = bag_with_tf(tmp_path, tf_until_s=0.55)  # the bag starts 0.5 s before its first frame
-    node_cfg = load_node_config(None, {"node": {"output_frame": "odom"}})
-    summary = replay_bag(path, None, progress=False, config=node_support.config(), node_config=node_cfg,
-                         fitter=node_support.fitter())
+    summary = node_support.stub_replay(path, node_config=load_node_config(None, {"node": {"output_frame": "odom"}}))
     assert summary.frames_published == 1 and summary.drops == {"tf_timeout": 1}
