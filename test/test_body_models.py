@@ -229,8 +229,10 @@ def _python2_era_pickle(data: dict, protocol: int) -> bytes:
 @pytest.mark.parametrize("protocol", [0, 2])
 def test_smpl_python2_era_pickle_with_sparse_regressor(tmp_path, rng, protocol):
     """The official file's layout: sparse J_regressor, chumpy-free arrays of several dtypes, strings and a
-    dict the model does not need; it loads through the allowlist and builds the model."""
-    arrays = _made_up_smpl(rng, n_verts=6890)
+    dict the model does not need; it loads through the allowlist and, with SMPL's 6,890 vertices and
+    protocol 2 (the official files'), builds the model. Protocol 0 (text: 1.5 s to write that size) is
+    read from a smaller file: once loaded, the arrays are the same whatever the protocol."""
+    arrays = _made_up_smpl(rng, n_verts=6890 if protocol == 2 else V_SMALL)
     data = dict(arrays, J_regressor=scipy.sparse.csc_matrix(arrays["J_regressor"]), bs_style="lbs",
                 f=arrays["f"].astype(np.uint32), pose_training_info={"num_poses": 1786})
     path = tmp_path / f"basicModel_p{protocol}.pkl"
@@ -241,8 +243,9 @@ def test_smpl_python2_era_pickle_with_sparse_regressor(tmp_path, rng, protocol):
     np.testing.assert_array_equal(loaded["J_regressor"], arrays["J_regressor"])
     np.testing.assert_array_equal(loaded["posedirs"], arrays["posedirs"])
     assert loaded["f"].dtype == np.uint32
-    model = SmplBody.from_config(_smpl_config(tmp_path, path))
-    assert torch.isfinite(_run(model).vertices).all()
+    if protocol == 2:
+        model = SmplBody.from_config(_smpl_config(tmp_path, path))
+        assert torch.isfinite(_run(model).vertices).all()
 
 
 def test_smpl_sparse_matrix_with_bad_indices_is_refused(tmp_path):
