@@ -75,6 +75,7 @@ class _VertexSubset:
     per_row: bool
     template: torch.Tensor  # (n, 3), per row (B, n, 3): template positions
     all_blendshapes: torch.Tensor  # (C, V, 3) Anny's, of which `blendshapes` are the subset's rows
+    by_vertex: torch.Tensor  # (V, C, 3) the same, vertex-major: a subset's rows are contiguous there
     # the vertices' skinning influences, packed (Anny stores 9 per vertex, 2.5 non-zero on average)
     vertex: torch.Tensor  # (E,) the vertex of each non-zero influence (per row: flat, row * n + vertex)
     bone: torch.Tensor  # (E,) its bone (per row: flat, row * bones + bone)
@@ -87,13 +88,13 @@ class _VertexSubset:
     @cached_property
     def blendshapes(self) -> torch.Tensor:
         """(C, n, 3), per row (C, B, n, 3): the subset's blend-shape offsets, sliced when a shaping first
-        needs them (a held shape's subsets never do: `AnnyBody._hold_rest`)."""
+        needs them (a held shape's subsets never do: `AnnyBody._hold_rest`). Gathered from the
+        vertex-major copy (contiguous rows: 0.6 ms for 1,500 vertices where slicing Anny's took 3 ms), then
+        laid out blend-shape-major again, where applying them is 5x faster."""
         if self.every_vertex:
             return self.all_blendshapes
-        if not self.per_row:
-            return self.all_blendshapes[:, self.key].contiguous()
-        rows, n = self.key.shape
-        return self.all_blendshapes[:, self.key.flatten()].reshape(-1, rows, n, 3).contiguous()
+        rows = self.by_vertex.index_select(0, self.key.flatten()).transpose(0, 1)  # (C, B·n or n, 3)
+        return (rows.reshape(-1, *self.key.shape, 3) if self.per_row else rows).contiguous()
 
 
 class AnnyBody(BodyModel):
@@ -112,6 +113,8 @@ class AnnyBody(BodyModel):
         self._every_vertex: _VertexSubset | None = None  # see `_full_subset`
         self._rest_cache: list[tuple] = []  # (subset, shape, rest vertices, bone poses, basis), see `_rest`
         self._held_rest: tuple | None = None  # (shape, all rest vertices, keypoint support's, ...): `_hold_rest`
+        # (V, C, 3), 22 MB, moved with the model (a buffer), not saved with it
+        self.register_buffer("_blendshapes_by_vertex", model.blendshapes.transpose(0, 1).contiguous(), persistent=False)
         self.shape_names = tuple(model.phenotype_labels)
         self.shape_sigma = shape_sigma
         self.shape_bound_weight = shape_bound_weight
@@ -282,8 +285,8 @@ class AnnyBody(BodyModel):
         else:
             n = key.shape[1]
             vertex, bone = nonzero[0] * n + nonzero[1], nonzero[0] * len(self.anny.bone_labels) + bones[nonzero]
-        return _VertexSubset(key, key.dim() == 2, template, self.anny.blendshapes, vertex, bone, weights[nonzero],
-                             weights, bones, every_vertex)
+        return _VertexSubset(key, key.dim() == 2, template, self.anny.blendshapes, self._blendshapes_by_vertex,
+                             vertex, bone, weights[nonzero], weights, bones, every_vertex)
 
     def _subset(self, vertex_index: torch.Tensor) -> _VertexSubset:
         """Anny's per-vertex data for `vertex_index` (n,) or (B, n), cached for the last index tensor: a
