@@ -158,17 +158,20 @@ class AnnyBody(BodyModel):
         share = torch.zeros(NUM_KEYPOINTS, len(model.bone_labels), dtype=mix.dtype).index_add_(1, bone, mix)
         self.register_buffer("kp_template", model.template_vertices[self.kp_support])
         self.register_buffer("kp_blendshapes", model.blendshapes[:, self.kp_support].contiguous())
-        self.register_buffer("kp_entry_vertex", vertex)
-        self.register_buffer("kp_entry_bone", bone)
-        self.register_buffer("kp_entry_mix", mix)
+        # P_kb's non-zero terms (most entries belong to one keypoint): term t adds mix_t times its rest
+        # vertex to row k_t * bones + b_t of the flattened basis, in the order of the entries per row
+        keypoint, entry = mix.nonzero(as_tuple=True)
+        self.register_buffer("kp_term_vertex", vertex[entry])
+        self.register_buffer("kp_term_row", keypoint * len(model.bone_labels) + bone[entry])
+        self.register_buffer("kp_term_mix", mix[keypoint, entry])
         self.register_buffer("kp_bone_share", share)  # (17, bones): s_kb
 
     def _keypoint_basis(self, rest_vertices: torch.Tensor) -> torch.Tensor:
         """(B, 17, bones, 3) P_kb from the rest vertices (B, n_kp + V, 3) of a subset."""
-        B = rest_vertices.shape[0]
-        entries = self.kp_entry_mix[None, :, :, None] * rest_vertices[:, self.kp_entry_vertex][:, None]
-        basis = entries.new_zeros(B, NUM_KEYPOINTS, len(self.anny.bone_labels), 3)
-        return basis.index_add_(2, self.kp_entry_bone, entries)
+        B, bones = rest_vertices.shape[0], len(self.anny.bone_labels)
+        terms = self.kp_term_mix[None, :, None] * rest_vertices[:, self.kp_term_vertex]  # (B, T, 3)
+        basis = terms.new_zeros(B, NUM_KEYPOINTS * bones, 3).index_add_(1, self.kp_term_row, terms)
+        return basis.view(B, NUM_KEYPOINTS, bones, 3)
 
     def _skinned_keypoints(self, basis: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
         """(B, 17, 3) keypoints (Anny world) from the basis and (B, bones, 4, 4) skinning transforms."""
