@@ -55,6 +55,10 @@ _CACHED_SUBSETS = 4  # vertex sets (and their rest shapes) kept by `AnnyBody._su
 # Every vertex of up to this many bodies goes through the subset path (5.0 vs 8.2 ms for one body, 9.3 vs
 # 11.8 for three, one thread); Anny's own forward, whose skinning scales better, for more (14.5 vs 14.8 at 4)
 _FULL_SUBSET_MAX_BODIES = 3
+# A shape asked for with a second vertex set is shaped whole (`AnnyBody._hold_rest`) once its sets add up
+# to this fraction of the mesh: a warm fit's held shape (its sets include every vertex) is, the shape
+# Jacobian's six perturbed shapes per person (keypoints, then a few dozen rows) are not
+_HOLD_MESH_FRACTION = 0.25
 
 # Parts of the Anny segmentation that are inside the body (never seen by a camera or a LiDAR).
 _INTERNAL_SEGMENTS = ("eye_back.L", "eye_back.R", "eye_cavity.L", "eye_cavity.R", "mouth_cavity", "tongue")
@@ -326,11 +330,17 @@ class AnnyBody(BodyModel):
         else:
             coeffs = self._coefficients(shape)
             result = self._shaped(coeffs, subset)
-            if self.anny.bone_orientation == "cached" and any(_same(c[1], shape) for c in self._rest_cache):
-                self._hold_rest(shape, coeffs, *result)  # the second vertex set of one shape: shape it whole
+            if self.anny.bone_orientation == "cached" and self._worth_holding(shape, subset):
+                self._hold_rest(shape, coeffs, *result)
         entry = (subset, shape.detach().clone(), *result)
         self._rest_cache = [entry, *self._rest_cache[: _CACHED_SUBSETS - 1]]
         return result
+
+    def _worth_holding(self, shape: torch.Tensor, subset: _VertexSubset) -> bool:
+        """A second vertex set of a kept shape, the sets together at least `_HOLD_MESH_FRACTION` of the mesh."""
+        kept = [c[0] for c in self._rest_cache if _same(c[1], shape)]
+        shaped = sum(s.key.shape[-1] for s in [*kept, subset])
+        return bool(kept) and shaped >= _HOLD_MESH_FRACTION * len(self.anny.template_vertices)
 
     def _coefficients(self, shape: torch.Tensor) -> torch.Tensor:
         """Anny's blend-shape coefficients of phenotypes `shape` (B, S)."""
