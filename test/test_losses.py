@@ -115,6 +115,28 @@ def test_nearest_sq_distances_matches_brute_force(rng):
     assert np.allclose(got[0].numpy(), brute.numpy())
 
 
+def test_nearest_indices_both_ways_with_masks_empty_rows_and_a_diverged_body(rng):
+    """The k-d tree search gives the brute-force neighbours among the valid targets, both ways; a person
+    without a valid target gets index 0 (as the distance matrix did), and NaN coordinates (a diverged
+    body) neither stop the search nor become anyone's neighbour."""
+    a = torch.as_tensor(rng.normal(0, 1, (3, 60, 3)) + [0.0, 0.0, 5.0])
+    b = torch.as_tensor(rng.normal(0, 1, (3, 45, 3)) + [0.0, 0.0, 5.0])
+    b_mask = torch.as_tensor(rng.random((3, 45)) < 0.7)
+    a_mask = torch.as_tensor(rng.random((3, 60)) < 0.8)
+    b_mask[2] = False  # person 2: nothing valid on the b side
+    b[1, 0] = float("nan")  # person 1: a diverged vertex, masked valid
+    b_mask[1, 0] = True
+    a_to_b, b_to_a = losses.nearest_indices(a, b, b_mask, a_mask)
+    for k in range(2):
+        d = ((a[k, :, None] - b[k, None]) ** 2).sum(-1).nan_to_num(float("inf"))
+        expected_ab = d.masked_fill(~b_mask[k][None], float("inf")).argmin(-1)
+        expected_ba = d.masked_fill(~a_mask[k][:, None], float("inf")).argmin(0)
+        finite = torch.isfinite(b[k]).all(-1)  # a NaN vertex's own neighbour means nothing
+        assert torch.equal(a_to_b[k], expected_ab) and torch.equal(b_to_a[k][finite], expected_ba[finite])
+    assert (a_to_b[2] == 0).all()
+    assert not (a_to_b[1] == 0).any(), "the NaN vertex is nobody's neighbour"
+
+
 def test_chamfer_vertex_weight_scales_only_the_vertex_half():
     verts = torch.tensor([[[0.0, 0, 0], [1.0, 0, 0]]])
     pts = torch.tensor([[[0.0, 0, 0.1]]])
