@@ -22,6 +22,7 @@ INPUT_TYPES = {
 
 def main(bag: str, reliability: str, depth: int) -> None:
     import rclpy
+    from rclpy.duration import Duration
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rosbags.rosbag2 import Reader
@@ -48,7 +49,8 @@ def main(bag: str, reliability: str, depth: int) -> None:
             pubs[conn.topic].publish(bytes(raw))  # the recorded CDR bytes, as a driver would send them
             images += conn.topic == "/camera/color/image_raw"
     print(f"published {images}", flush=True)
-    time.sleep(2.0)  # reliable repairs of the last messages
+    for pub in pubs.values():  # reliable: until every reader acknowledged the last messages (best effort: at once)
+        pub.wait_for_all_acked(Duration(seconds=2.0))
     node.destroy_node()
     rclpy.try_shutdown()
 
