@@ -314,8 +314,8 @@ class AnnyBody(BodyModel):
         """Rest vertices (B, n_kp + n, 3: the keypoint support, then the subset's), rest bone poses and the
         keypoint basis of phenotypes `shape` (B, S), kept for the last shape values and subset: stages that
         move pose or position only (most of a fit) call the model with the same shape at every step, and
-        shaping is half of a forward pass; a shape asked for with several vertex sets is kept whole
-        (`_hold_rest`)."""
+        shaping is half of a forward pass; a shape asked for with several vertex sets that together cover
+        a good part of the mesh is kept whole (`_worth_holding`, `_hold_rest`)."""
         if shape.requires_grad:
             return self._shaped(self._coefficients(shape), subset)
         for cached in self._rest_cache:
@@ -353,9 +353,9 @@ class AnnyBody(BodyModel):
 
     def _hold_rest(self, shape: torch.Tensor, coeffs: torch.Tensor, rest_vertices: torch.Tensor,
                    rest_bone_poses: torch.Tensor, basis: torch.Tensor) -> None:
-        """Keep every rest vertex of a shape asked for with a second vertex set (a warm fit's held shape,
-        whose stages, checks and outputs pose several sets): later sets are rows of it, not a new shaping
-        (136 blend shapes sliced and applied). Shapes that change at every step never get here twice."""
+        """Keep every rest vertex of a shape asked for with further vertex sets (`_worth_holding`: a warm
+        fit's held shape, whose stages, checks and outputs pose several sets): later sets are rows of it,
+        not a new shaping (136 blend shapes sliced and applied)."""
         full = self.anny.template_vertices + torch.einsum("bc,cnd->bnd", coeffs, self.anny.blendshapes)
         kp_rest = rest_vertices[:, : len(self.kp_support)]
         self._held_rest = (shape.detach().clone(), full, kp_rest, rest_bone_poses, basis)

@@ -262,9 +262,7 @@ def prior_block(model: BodyModel, state, problem, stage, profile: OptimizerProfi
     r, d = held_linearized(pose, problem.init_pose)  # both holds share the rotations, not the joints
     for weight, mask in ((w.occlusion, occluded), (w.init_pose, 1.0 - occluded)):
         if weight > 0:
-            root = mask.sqrt()
-            terms.append((weight, (r.unflatten(1, (-1, 3)) * root[..., None]).flatten(1),
-                          _block_diagonal(d * root[..., None, None])))
+            terms.append((weight, *_masked_hold(r, d, mask)))
     _add_pose_terms(terms, B, layout, profile, acc)
 
 
@@ -357,10 +355,14 @@ def held_linearized(pose: torch.Tensor, init_pose: torch.Tensor, mask: torch.Ten
     omega_q = torch.cat([omega, torch.zeros_like(omega[..., :1])], -1)  # pure quaternions
     d = roma.quat_product(q0_inv[:, :, None], roma.quat_product(omega_q, q[:, :, None].expand_as(omega_q)))
     d = d[..., :3].transpose(-1, -2)  # (B, J, 3 residual, 3 column)
-    if mask is None:
-        return r.flatten(1), d
+    return (r.flatten(1), d) if mask is None else _masked_hold(r.flatten(1), d, mask)
+
+
+def _masked_hold(r: torch.Tensor, blocks: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """A hold's unmasked residuals (B, 3J) and per-joint blocks (B, J, 3, 3) on the joints `mask` (B, J)
+    weights: √mask · r (B, 3J) and its Jacobian (B, 3J, 3J)."""
     root = mask.sqrt()[..., None]
-    return (r * root).flatten(1), _block_diagonal(d * root[..., None])
+    return (r.unflatten(1, (-1, 3)) * root).flatten(1), _block_diagonal(blocks * root[..., None])
 
 
 def _block_diagonal(blocks: torch.Tensor) -> torch.Tensor:
