@@ -53,9 +53,8 @@ def topics(node_config) -> BagTopics:
 
 
 @cache
-@cache
 def ground_truth(name: str) -> dict:
-    """{stamp ns: ground-truth bodies} of one bag (read once per test process; the tests only read it)."""
+    """{stamp ns: ground-truth bodies} of one bag (read once per test process)."""
     return read_ground_truth(BAGS_DIR / name)
 
 

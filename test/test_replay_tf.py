@@ -61,9 +61,8 @@ def test_output_frame_odom_replays_with_the_recorded_tf(tmp_path):
     in_odom = node_support.stub_replay(path, tmp_path / "out.mcap", fitter=SpreadStubFitter(),
                                        node_config=load_node_config(None, {"node": {"output_frame": "odom"}}))
     in_camera = node_support.stub_replay(node_support.fixture_bag("mcap").path, fitter=SpreadStubFitter())
-    node_cfg = load_node_config()
     assert in_odom.drops == {} and in_odom.frames_published == in_camera.frames_published == 2
-    T_velodyne_cam = node_cfg.extrinsic.T_lidar_cam()
+    T_velodyne_cam = node_support.node_config().extrinsic.T_lidar_cam()
     for odom, cam in zip(in_odom.frames, in_camera.frames, strict=True):
         assert odom.stamp_ns == cam.stamp_ns and odom.person_ids == cam.person_ids
         T = odom_to_velodyne(odom.stamp_ns, t0) @ T_velodyne_cam  # camera -> odom at the image's stamp
