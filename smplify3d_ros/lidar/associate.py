@@ -19,7 +19,10 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
     shows the body itself or an occluder in front of it, never the background. A part refutes j when
     its core holds more points of clusters farther than j (by `depth_tolerance_m`) than of j: the
     occluding box is refuted by the torso and head behind it, and so is a person standing in front
-    of k by k's own visible parts. Only parts wider than the core refute (`refuting_parts`).
+    of k by k's own visible parts. "More" means `refute_ratio` times as many: a child's neck or thigh
+    is narrower than the core, and keypoint noise moves the core off a thin part, so that a few points
+    of the wall seen beside it must not outvote the body's own. Only parts wider than the core refute
+    (`refuting_parts`).
   - isolation: how much j stands out from a surface seen through the bbox, the larger of
       purity: in_mask / in_box is 1 for a body (it fills its mask, not the bbox around it), and for
         a wall the fraction of the bbox that the mask covers at the wall's depth (`mask_fraction`,
@@ -175,7 +178,8 @@ def _contradicted_parts(
 
     A body hides what is behind it, so the skeleton's core (points within `core_radius_m`) shows the
     body itself or an occluder in front of it, never the background. A part refutes hypothesis j when
-    its core holds more points of other clusters farther than j (by `depth_tolerance_m`) than of j.
+    its core holds `refute_ratio` times more points of other clusters farther than j (by
+    `depth_tolerance_m`) than of j.
     Only `refuting_parts` take part: those wider than the core (torso, head, thighs), since beside a
     thin forearm the core already shows what is behind it; and only segments whose keypoints score at
     least `refute_min_score`, since a guessed joint puts the core beside the body.
@@ -189,7 +193,7 @@ def _contradicted_parts(
     )
     one_hot = np.eye(own_core.shape[1])[parts]  # (n, parts)
     refuting = np.isin(np.arange(own_core.shape[1]), [PART_INDEX[p] for p in config.refuting_parts])
-    return ((behind.astype(np.float64) @ one_hot > own_core) & refuting).sum(axis=1)
+    return ((behind.astype(np.float64) @ one_hot > config.refute_ratio * own_core) & refuting).sum(axis=1)
 
 
 def mask_fraction(
