@@ -419,5 +419,5 @@ def test_a_few_wall_points_beside_a_thin_part_do_not_outvote_the_body():
         _, result = extract_frame_people(sim.frame, config)
         taken = result.people[child].indices
         correct = np.isin(taken, own)
-        found = len(taken) and correct.mean() > 0.9 and len(taken) >= 0.9 * len(own)
+        found = len(taken) > 0 and correct.mean() > 0.9 and len(taken) >= 0.9 * len(own)
         assert found == keeps_own, (config.refute_ratio, len(taken), int(correct.sum()))
