@@ -159,6 +159,8 @@ class FrameFitter:
         """The path up to the fit: people selected, their observations (`fits` left empty)."""
         frame, dropped = self.select_people(frame)
         if len(frame.keypoints) == 0:
+            if self.tracker is not None:
+                self.tracker.assign([], frame.stamp_ns)  # a frame without people: the tracks missed it
             return FrameFits(frame, [], [], frame.T_cam_lidar[:3, 3].copy(), dropped)
         t = time.perf_counter()
         people, origin = self.observations(frame)

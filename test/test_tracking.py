@@ -62,12 +62,27 @@ def test_a_track_keeps_its_id_through_a_short_occlusion_and_ends_after_a_long_on
     first = step(tracker, 0, [observation(-1, 0.0)])[0].person_id
     for frame in range(1, 5):
         step(tracker, frame, [observation(-1, 0.1 * frame)])
-    # hidden for 0.5 s, walking on
+    for frame in range(5, 10):  # hidden for 0.5 s, walking on
+        step(tracker, frame, [])
     back = step(tracker, 10, [observation(-1, 1.0)])[0].person_id
     assert back == first
-    # hidden for 2 s: a new track
+    for frame in range(11, 31):  # hidden for 2 s: a new track
+        step(tracker, frame, [])
     later = step(tracker, 31, [observation(-1, 1.0)])[0].person_id
     assert later != first and tracker.stats.tracks_ended == 1
+
+
+def test_frames_the_node_skipped_do_not_end_a_track():
+    """A node that falls behind fits frames far apart: a person present in each keeps their track (and
+    warm start), however long the gap; only frames that miss them count as unseen."""
+    tracker = Tracker(config(max_unseen_s=1.0))
+    first = step(tracker, 0, [observation(-1, 0.0)])[0].person_id
+    step(tracker, 1, [observation(-1, 0.1)])
+    for frame in (15, 30, 45):  # 1.5 s between the frames fitted
+        assert step(tracker, frame, [observation(-1, 0.1)])[0].person_id == first
+    assert tracker.stats.tracks_ended == 0 and tracker.warm_start(first, 46 * NS) is not None
+    step(tracker, 46, [])  # missed once, then the next frame fitted is 1.5 s later: unseen for 0.1 s only
+    assert step(tracker, 60, [observation(-1, 0.1)])[0].person_id == first
 
 
 def test_detector_ids_are_kept_and_a_returning_id_starts_fresh():
@@ -75,6 +90,8 @@ def test_detector_ids_are_kept_and_a_returning_id_starts_fresh():
     for frame in range(3):
         step(tracker, frame, [observation(7, 0.0)], shapes={0: (0.2,) * 6})
     assert tracker.held_shape(7) == pytest.approx(np.full(6, 0.2))
+    for frame in range(3, 20):
+        step(tracker, frame, [])
     fits = step(tracker, 20, [observation(7, 0.0)], shapes={0: (0.8,) * 6})
     assert fits[0].person_id == 7
     assert tracker.held_shape(7) is None, "a new track for the returning id: its shape is estimated again"

@@ -6,8 +6,10 @@ assignment of `association.associate`). `Tracker.warm_start` is a tracked person
 to where the motion filter predicts the pelvis at the new stamp (pose as last seen, the track's held
 shape), for the fitter's short warm solve. `Tracker.update` folds the frame's fits in: the filter's
 velocity goes onto each fit, the shape is averaged over the track's first frames (weighted by their
-LiDAR points) and then held, and tracks not seen for `max_unseen_s` end (an id that comes back starts a
-new track). Everything is in the camera frame, in which the fits are made.
+LiDAR points) and then held. A track ends once the frames the tracker was given show it unseen for
+longer than `max_unseen_s` (an id that comes back then starts a new track): time between frames the
+node did not process is not evidence that a person left, so a node that falls behind and skips frames
+keeps its tracks (and their warm starts). Everything is in the camera frame, in which the fits are made.
 """
 
 from __future__ import annotations
@@ -68,6 +70,11 @@ class Track:
     shape_sum: np.ndarray | None = None
     shape_weight: float = 0.0
     shape: np.ndarray | None = None  # the held shape, once `shape_frames` frames are in
+    missed_ns: int | None = None  # the latest frame given to the tracker without this track's person since last seen
+
+    def unseen_s(self) -> float:
+        """How long the frames given to the tracker show this track unseen (0 until a frame misses it)."""
+        return 0.0 if self.missed_ns is None else (self.missed_ns - self.last_stamp_ns) * _NS
 
     def age_s(self, stamp_ns: int) -> float:
         return (stamp_ns - self.last_stamp_ns) * _NS
@@ -113,8 +120,10 @@ class Tracker:
 
     # -- ids -------------------------------------------------------------------------------------------
     def assign(self, people: list[PersonObservation], stamp_ns: int) -> list[PersonObservation]:
-        """The observations with their track ids (detector ids kept; anonymous people associated)."""
-        self._end_stale(stamp_ns)
+        """The observations with their track ids (detector ids kept; anonymous people associated). Every
+        frame the node fits goes through here, those without people too (`people` empty): the tracks
+        missing from it count it as a frame unseen."""
+        self._end_stale()
         out = list(people)
         anonymous = [i for i, p in enumerate(people) if p.person_id < 0]
         claimed = {p.person_id for p in people if p.person_id >= 0}
@@ -130,10 +139,14 @@ class Tracker:
             else:
                 track_id = track.track_id
             out[i] = replace(people[i], person_id=track_id)
+        present = {p.person_id for p in out}
+        for track in self.tracks.values():
+            if track.track_id not in present:
+                track.missed_ns = stamp_ns
         return out
 
-    def _end_stale(self, stamp_ns: int) -> None:
-        for track_id in [t.track_id for t in self.tracks.values() if t.age_s(stamp_ns) > self.config.max_unseen_s]:
+    def _end_stale(self) -> None:
+        for track_id in [t.track_id for t in self.tracks.values() if t.unseen_s() > self.config.max_unseen_s]:
             del self.tracks[track_id]
             self._own.discard(track_id)
             self.stats.tracks_ended += 1
@@ -203,7 +216,7 @@ class Tracker:
             if pose is not None and track.last_output is not None:
                 fit = self._smoothed(fit, track, pose)
             track.previous_output, track.last_output = track.last_output, fit
-            track.last_stamp_ns, track.frames = stamp_ns, track.frames + 1
+            track.last_stamp_ns, track.frames, track.missed_ns = stamp_ns, track.frames + 1, None
             if obs is not None:
                 track.bbox, track.surface = np.asarray(obs.bbox, np.float64), surface_point(obs)
             self._fold_shape(track, fit)
