@@ -1,11 +1,14 @@
 """`smplify3d bench-live BAG`: the node live, in this process, fed a recording at its recorded rate.
 
-The node (`smplify3d_ros.node`) and a player node spin in one process over the local ROS graph (loopback,
-a domain of their own). The player publishes the bag's input topics through rclpy at the recorded timing,
-every stamp shifted by one offset so that the frames look captured now; a recorder subscribes to
-`~/bodies`. Printed: frames played, bodies documents received, the output rate while the bag played, and
-the latency from the image stamp to the moment `~/bodies` arrives (median, 95th percentile), plus the
-node's own counters (stale frames dropped, warm and cold fits). Without rclpy it says so and exits 2.
+The node (`smplify3d_ros.node`) and a recorder of `~/bodies` spin in this process over the local ROS graph
+(loopback, a domain of their own). A player publishes the bag's input topics through rclpy at the recorded
+timing, every stamp shifted by one offset so that the frames look captured now. The player runs in a
+process of its own, as a robot's camera and LiDAR drivers do (`--in-process-player`: in the node's
+process, where reading and publishing the bag competes with the fitting for Python's interpreter lock).
+Printed: frames played, bodies documents received, the output rate while the bag played, and the
+latency from the image stamp to the moment `~/bodies` arrives (median, 95th percentile), plus the node's
+own counters (each stage's latency, stale frames dropped, warm and cold fits). Without rclpy it says so
+and exits 2.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import argparse
 import json
 import os
 import random
+import subprocess
 import sys
 import threading
 import time
@@ -54,7 +58,7 @@ class LiveResult:
             lines.append(f"latency image stamp -> ~/bodies: median {np.median(lat):.0f} ms, "
                          f"95th percentile {np.percentile(lat, 95):.0f} ms, max {lat.max():.0f} ms")
         keys = [k for k in sorted(self.diagnostics) if k.startswith(("queue.", "tracking.", "sync.matched",
-                                                                       "latency_ms.fit", "drop."))]
+                                                                       "latency_ms.", "drop."))]
         lines += [f"  {k}: {self.diagnostics[k]}" for k in keys]
         return "\n".join(lines)
 
@@ -62,15 +66,13 @@ class LiveResult:
 class _Player:
     """Publishers for the node's inputs; publishes a bag's messages with shifted stamps."""
 
-    def __init__(self, node_config: Any, rclpy_node: Any) -> None:
+    def __init__(self, topics: dict[str, str], rclpy_node: Any) -> None:
+        """`topics`: input name (`INPUT_TYPES` key) -> topic; empty topics are not played."""
         from msg_adapters import RclpyFactory
 
         self.node = rclpy_node
         self.factory = RclpyFactory()
-        topics = node_config.topics
-        wanted = {"image": topics.image, "compressed_image": topics.compressed_image,
-                  "camera_info": topics.camera_info, "points": topics.points, "keypoints": topics.keypoints}
-        self.topics = {topic: name for name, topic in wanted.items() if topic}
+        self.topics = {topic: name for name, topic in topics.items() if topic}
         self.publishers = {name: rclpy_node.create_publisher(self.factory.message_class(INPUT_TYPES[name]), topic,
                                                              10)
                            for topic, name in self.topics.items()}
@@ -104,8 +106,61 @@ class _Player:
                 last_wall = time.monotonic()
         return frames, (last_wall - first_wall) if first_wall is not None and last_wall else 0.0
 
+    def wait_for_subscribers(self, timeout_s: float) -> bool:
+        """Whether every publisher was matched by a subscriber within `timeout_s` (discovery)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if all(p.get_subscription_count() > 0 for p in self.publishers.values()):
+                return True
+            time.sleep(0.05)
+        return False
 
-def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: float, settle_s: float) -> LiveResult:
+
+def input_topics(node_config: Any) -> dict[str, str]:
+    """The node's input topics by `INPUT_TYPES` name."""
+    t = node_config.topics
+    return {"image": t.image, "compressed_image": t.compressed_image, "camera_info": t.camera_info,
+            "points": t.points, "keypoints": t.keypoints}
+
+
+def play_main(argv: list[str]) -> int:
+    """The player process: `python -m smplify3d_ros.eval.live --play BAG TOPICS_JSON SPEED`. Publishes
+    once its subscribers are matched, then prints `{"frames": N, "duration_s": S}` on stdout."""
+    import rclpy
+
+    bag, topics, speed = Path(argv[0]), json.loads(argv[1]), float(argv[2])
+    rclpy.init()
+    try:
+        node = rclpy.create_node("smplify3d_bench_live_player")
+        player = _Player(topics, node)
+        player.wait_for_subscribers(10.0)
+        time.sleep(0.2)  # the subscriptions' side of the match
+        frames, duration = player.play(bag, speed, threading.Event())
+        print(json.dumps({"frames": frames, "duration_s": duration}), flush=True)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+    return 0
+
+
+def _play_in_child(bag: Path, topics: dict[str, str], speed: float) -> tuple[int, float]:
+    """(frames, seconds) played by a player process (`play_main`) on this process's ROS domain."""
+    command = [sys.executable, "-m", "smplify3d_ros.eval.live", "--play", str(bag), json.dumps(topics), str(speed)]
+    child = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=dict(os.environ))
+    try:
+        out, _ = child.communicate()
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    if child.returncode != 0:
+        raise RuntimeError(f"the player process exited with status {child.returncode}")
+    played = json.loads(out.strip().splitlines()[-1])
+    return int(played["frames"]), float(played["duration_s"])
+
+
+def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: float, settle_s: float,
+             in_process_player: bool = False) -> LiveResult:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
@@ -121,7 +176,7 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
     try:
         node = create_node({"params_file": params or "jackal_vlp16", **overrides})
         helper = Node("smplify3d_bench_live")
-        player = _Player(node.node_config, helper)
+        player = _Player(input_topics(node.node_config), helper) if in_process_player else None
         factory = RclpyFactory()
         lock = threading.Lock()
 
@@ -145,9 +200,11 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
         executor.add_node(helper)
         spinner = threading.Thread(target=executor.spin, daemon=True)
         spinner.start()
-        time.sleep(1.0)  # discovery
-        stop = threading.Event()
-        result.frames_played, result.duration_s = player.play(bag, speed, stop)
+        if player is not None:
+            time.sleep(1.0)  # discovery
+            result.frames_played, result.duration_s = player.play(bag, speed, threading.Event())
+        else:
+            result.frames_played, result.duration_s = _play_in_child(bag, input_topics(node.node_config), speed)
         time.sleep(settle_s)  # the last frame's fit and one diagnostics period
     finally:
         if executor is not None:
@@ -176,6 +233,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", type=float, default=1.0, help="playback speed (1: the recorded rate)")
     parser.add_argument("--settle", type=float, default=3.0, help="seconds to wait after the last message")
     parser.add_argument("--json", type=Path, default=None, help="write the figures to this JSON file")
+    parser.add_argument("--in-process-player", action="store_true",
+                        help="play the bag in the node's process (default: a process of its own, as sensor drivers)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -187,12 +246,13 @@ def run(args: argparse.Namespace) -> int:
     if not args.bag.exists():
         print(f"smplify3d bench-live: {args.bag} does not exist", file=sys.stderr)
         return 2
-    result = run_live(args.bag, args.params, dict(args.parameters), args.speed, args.settle)
+    result = run_live(args.bag, args.params, dict(args.parameters), args.speed, args.settle, args.in_process_player)
     print(result.text())
     if args.json is not None:
         lat = result.latencies_ms
         args.json.write_text(json.dumps({
-            "bag": str(args.bag), "frames_played": result.frames_played, "duration_s": result.duration_s,
+            "bag": str(args.bag), "player": "in-process" if args.in_process_player else "process",
+            "frames_played": result.frames_played, "duration_s": result.duration_s,
             "bodies_received": len(result.bodies),
             "rate_hz": len(result.bodies) / result.duration_s if result.duration_s else None,
             "latency_ms_median": float(np.median(lat)) if len(lat) else None,
@@ -200,3 +260,7 @@ def run(args: argparse.Namespace) -> int:
             "diagnostics": result.diagnostics,
         }, indent=1))
     return 0 if result.bodies else 1
+
+
+if __name__ == "__main__" and sys.argv[1:2] == ["--play"]:
+    sys.exit(play_main(sys.argv[2:]))
