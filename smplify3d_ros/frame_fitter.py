@@ -180,8 +180,9 @@ class FrameFitter:
 
     def _fit_tracked(self, observed: FrameFits, options: FitOptions | None) -> list[BodyFit]:
         """Warm fits for tracked people, cold ones for the others and for warm fits that lost their person;
-        every `tracking.refresh_frames` frames of a track, a cold fit too, with the warm start as one more
-        hypothesis, which replaces the warm fit when its final loss is below `tracking.refresh_margin` of
+        every `tracking.refresh_frames` frames of a track (`_refreshes_due`), a cold fit too, with the warm
+        start as one more hypothesis, which replaces the warm fit when its final loss is below
+        `tracking.refresh_margin` of
         the warm fit's (a warm solve cannot leave a wrong minimum, e.g. a heading it inherited, and the
         fits' residuals do not tell). The tracks are updated with the result (velocity onto each fit)."""
         tracker, stamp, K = self.tracker, observed.frame.stamp_ns, observed.frame.camera.K
@@ -198,8 +199,10 @@ class FrameFitter:
                               strict=True):
                 if not self._lost(fit, people[i]):
                     warm_fits[i] = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
-        refresh = {i for i in warm_fits if self._refresh_due(people[i])}
+        refresh = self._refreshes_due([i for i in warm_fits], people)
         cold = [i for i in range(len(people)) if i not in warm_fits or i in refresh]
+        for i in refresh:
+            tracker.track(people[i].person_id).last_refresh_frame = tracker.track(people[i].person_id).frames
         fits = dict(warm_fits)
         if cold:
             cold_people = [replace(people[i], hypothesis=_as_hypothesis(warm_start[i])) if i in refresh
@@ -219,9 +222,17 @@ class FrameFitter:
         return bool(np.isfinite(cold.quality.final_loss) and FLAG_DIVERGED not in cold.flags
                     and cold.quality.final_loss < self.config.tracking.refresh_margin * warm.quality.final_loss)
 
-    def _refresh_due(self, obs: PersonObservation) -> bool:
-        every = self.config.tracking.refresh_frames
-        return every > 0 and self.tracker.track(obs.person_id).frames % every == 0
+    def _refreshes_due(self, candidates: list[int], people: list[PersonObservation]) -> set[int]:
+        """Which of the warm-fitted `candidates` get the refresh's cold fit: those `refresh_frames` or more
+        frames past their last refresh (or start), at most `refresh_max_people` of them, the longest waiting first
+        (tracks that started together would otherwise all refresh in the same frame, a frame as slow as
+        fitting everyone cold; the others wait a frame or two)."""
+        cfg = self.config.tracking
+        if cfg.refresh_frames <= 0:
+            return set()
+        waited = {i: (t := self.tracker.track(people[i].person_id)).frames - t.last_refresh_frame for i in candidates}
+        due = sorted((i for i in candidates if waited[i] >= cfg.refresh_frames), key=lambda i: -waited[i])
+        return set(due[: cfg.refresh_max_people] if cfg.refresh_max_people > 0 else due)
 
     def _regained(self, obs: PersonObservation) -> bool:
         """A tracked person fitted from the image alone last time who has LiDAR points again: their last

@@ -201,6 +201,31 @@ def test_every_nth_frame_of_a_track_is_a_cold_start_with_the_warm_start_among_it
     assert path.tracker.track(4).last_fit.flags == {"warm_start"}
 
 
+def test_people_tracked_together_are_refreshed_in_turn():
+    """Three tracks started in the same frame would all be refreshed in the same frames, each such frame
+    as slow as fitting everyone cold: with `refresh_max_people` 1, one per frame, the longest waiting
+    first, and every track still refreshed about every `refresh_frames` frames."""
+    from types import SimpleNamespace
+
+    from node_support import StubFitter
+
+    from smplify3d_ros.frame_fitter import FrameFits, FrameFitter
+
+    cold, warm = StubFitter(), StubFitter()
+    core = load_config(overrides={"tracking": {"refresh_frames": 3, "refresh_max_people": 1}})
+    path = FrameFitter(core, fitter=cold, tracker=Tracker(core.tracking), warm_fitter=warm)
+    refreshed_per_frame = []
+    for k in range(10):
+        frame = SimpleNamespace(stamp_ns=k * NS, camera=SimpleNamespace(K=np.eye(3)))
+        people = path.tracker.assign([observation(pid, 0.1 * k + pid) for pid in (1, 2, 3)], frame.stamp_ns)
+        calls = len(cold.calls)
+        path.fit_observed(FrameFits(frame, people, [], np.zeros(3)))
+        refreshed_per_frame.append([p.person_id for call in cold.calls[calls:] for p in call])
+    assert refreshed_per_frame[0] == [1, 2, 3]  # the new tracks
+    assert all(len(ids) <= 1 for ids in refreshed_per_frame[1:]), refreshed_per_frame
+    assert sorted(sum(refreshed_per_frame[3:6], [])) == [1, 2, 3], refreshed_per_frame
+
+
 def test_a_warm_fit_that_lost_its_person_falls_back_to_the_cold_start():
     """A warm fit whose keypoints reproject far off (more than `lost_reprojection` of the box height) or
     whose mesh lies far from its points is thrown away and the person fitted cold, and counted as lost."""

@@ -25,6 +25,7 @@ class TrackingConfig:
     warm_profile: str  # the fitting.profiles entry of the warm solve
     warm_icp: bool  # the rigid LiDAR alignment before a warm solve (the prediction is usually close already)
     refresh_frames: int  # every n-th frame of a track: the cold start, the warm start one of its hypotheses (0: never)
+    refresh_max_people: int  # people refreshed in one frame at most, the longest unrefreshed first (0: no limit)
     refresh_margin: float  # a refresh's cold fit replaces the warm fit when its final loss is below this fraction
     lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of its box height) is lost
     lost_chamfer_m: float  # ... or whose mesh is farther than this from its points
@@ -36,6 +37,7 @@ class TrackingConfig:
         require(self.max_unseen_s > 0, "max_unseen_s must be > 0")
         require(self.shape_frames >= 1, "shape_frames must be >= 1")
         require(self.refresh_frames >= 0, "refresh_frames must be >= 0 (0: never)")
+        require(self.refresh_max_people >= 0, "refresh_max_people must be >= 0 (0: no limit)")
         require(0.0 < self.refresh_margin <= 1.0, "refresh_margin must be in (0, 1]")
         require(0.0 < self.pose_smoothing <= 1.0, "pose_smoothing must be in (0, 1]")
         require(0.0 <= self.shape_rate <= 1.0, "shape_rate must be in [0, 1]")

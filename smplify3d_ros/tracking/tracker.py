@@ -67,6 +67,7 @@ class Track:
     last_output: BodyFit | None = None  # ... as it was output (smoothed)
     previous_output: BodyFit | None = None  # the output before that (the rotations' rate of change)
     frames: int = 0  # frames fitted
+    last_refresh_frame: int = 0  # `frames` at the track's last refresh (`FrameFitter._refreshes_due`)
     shape_sum: np.ndarray | None = None
     shape_weight: float = 0.0
     shape: np.ndarray | None = None  # the held shape, once `shape_frames` frames are in
