@@ -182,9 +182,9 @@ class FrameFitter:
         """Warm fits for tracked people, cold ones for the others and for warm fits that lost their person;
         every `tracking.refresh_frames` frames of a track (`_refreshes_due`), a cold fit too, with the warm
         start as one more hypothesis, which replaces the warm fit when its final loss is below
-        `tracking.refresh_margin` of
-        the warm fit's (a warm solve cannot leave a wrong minimum, e.g. a heading it inherited, and the
-        fits' residuals do not tell). The tracks are updated with the result (velocity onto each fit)."""
+        `tracking.refresh_margin` of the warm fit's (a warm solve cannot leave a wrong minimum, e.g. a
+        heading it inherited, and the fits' residuals do not tell). The tracks are updated with the
+        result (velocity onto each fit)."""
         tracker, stamp, K = self.tracker, observed.frame.stamp_ns, observed.frame.camera.K
         people = observed.observations
         warm_start = {i: tracker.warm_start(p.person_id, stamp) for i, p in enumerate(people)
