@@ -58,7 +58,9 @@ class FrameFits:
     fits: list[BodyFit]  # one per observation, same order
     lidar_origin: np.ndarray  # (3,) the LiDAR's position in the camera frame
     people_dropped: Counter = field(default_factory=Counter)  # PERSON_* -> people
-    latency: dict[str, float] = field(default_factory=dict)  # "extract", "fit" -> seconds
+    # "extract", "fit" -> seconds; tracked frames with warm fits also "warm_fit_per_person" (their batch's
+    # warm solve divided by its people)
+    latency: dict[str, float] = field(default_factory=dict)
 
 
 def _box_area(uv: np.ndarray) -> float:
@@ -172,13 +174,16 @@ class FrameFitter:
     def fit_observed(self, observed: FrameFits, options: FitOptions | None = None) -> FrameFits:
         """The fit of `observe`'s people (the bench fits one observation several ways)."""
         t = time.perf_counter()
+        latency = dict(observed.latency)
         if self.tracker is None:
             fits = self.fitter.fit(observed.observations, observed.frame.camera.K, observed.lidar_origin, options)
         else:
-            fits = self._fit_tracked(observed, options)
-        return replace(observed, fits=fits, latency={**observed.latency, "fit": time.perf_counter() - t})
+            fits = self._fit_tracked(observed, options, latency)
+        latency["fit"] = time.perf_counter() - t
+        return replace(observed, fits=fits, latency=latency)
 
-    def _fit_tracked(self, observed: FrameFits, options: FitOptions | None) -> list[BodyFit]:
+    def _fit_tracked(self, observed: FrameFits, options: FitOptions | None,
+                     latency: dict[str, float]) -> list[BodyFit]:
         """Warm fits for tracked people, cold ones for the others and for warm fits that lost their person;
         every `tracking.refresh_frames` frames of a track (`_refreshes_due`), a cold fit too, with the warm
         start as one more hypothesis, which replaces the warm fit when its final loss is below
@@ -195,8 +200,10 @@ class FrameFitter:
             warm_people = [replace(people[i], init=warm_start[i].params, init_vertices=warm_start[i].vertices)
                            for i in warm]
             warm_options = replace(options or FitOptions(), use_icp=self.config.tracking.warm_icp)
-            for i, fit in zip(warm, self.warm_fitter.fit(warm_people, K, observed.lidar_origin, warm_options),
-                              strict=True):
+            t = time.perf_counter()
+            warm_results = self.warm_fitter.fit(warm_people, K, observed.lidar_origin, warm_options)
+            latency["warm_fit_per_person"] = (time.perf_counter() - t) / len(warm_people)
+            for i, fit in zip(warm, warm_results, strict=True):
                 if not self._lost(fit, people[i]):
                     warm_fits[i] = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
         refresh = self._refreshes_due([i for i in warm_fits], people)

@@ -190,3 +190,19 @@ def test_seconds_per_person_is_each_persons_share_of_the_fit_call():
     rows = report.band_rows(cases, "builtin_init_three_stage", "vlp16", type("B", (), {
         "distance_bands_m": [1.5, 4.0, 8.0, 12.0, 15.0], "heading_bands_deg": (45.0, 135.0)})(), 0.15)
     assert [r["seconds_per_person"] for r in rows[:4]] == [0.4, 0.4, 0.4, 0.4]  # one fit of 3 people: 1.2 s
+
+
+def test_sequences_report_the_warm_fit_time_per_person(tmp_path, capsys):
+    """`--sequences` on a 3-frame walk: the tracked runs time their warm fits (frames 2 and 3 are warm),
+    the single-frame runs have none, and every figure lands in the JSON."""
+    out = tmp_path / "sequences.json"
+    args = parse(["--sequences", "walk", "--scenes", "1", "--frames", "3", "--json", str(out), "--no-progress",
+                  *FAST])  # fmt: skip
+    assert cli.run(args) == 0
+    rows = {(r["variant"], r["detector"]): r for r in json.loads(out.read_text())["rows"]}
+    assert set(rows) == {(v, d) for v in ("tracked", "single_frame") for d in ("track_ids", "anonymous")}
+    tracked = rows[("tracked", "track_ids")]
+    assert tracked["fitted"] == 3 and tracked["warm_share"] == pytest.approx(2 / 3)
+    assert 0.0 < tracked["warm_ms_per_person"] < tracked["ms_per_person_frame"] * 3
+    assert np.isnan(rows[("single_frame", "track_ids")]["warm_ms_per_person"])
+    assert "warm fit ms / person (median)" in capsys.readouterr().out

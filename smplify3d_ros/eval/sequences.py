@@ -8,7 +8,9 @@ drivers run, twice per detector kind (the keypoints with the detector's track id
 Per person and overall: MPJPE and PA-MPJPE over the model's joints (mm), the acceleration error (mean over
 joints of |a_fit - a_true|, a = the second difference over consecutive frames, mm/frame^2), id switches
 (a true person's track id changing between frames: with detector ids only a fit assigned to the wrong
-track can switch), the share of warm, cold and lost fits, and the fit time per person and frame.
+track can switch), the share of warm, cold and lost fits, the fit time per person and frame, and the
+median time of a warm fit per person (a frame's warm solve, all its tracked people in one batch,
+divided by their number).
 Sequences come from report seeds (`sim.bench.report_seed_start` on), never from tuning seeds.
 """
 
@@ -47,6 +49,7 @@ class RunResult:
     people: dict[int, PersonTrack]
     seconds: float  # fit time of the whole run
     fits: int  # people fitted, all frames
+    warm_seconds: list[float] = field(default_factory=list)  # per frame with warm fits: per person
 
     def per_person(self) -> dict[int, dict[str, float]]:
         return {pid: person_figures(track) for pid, track in self.people.items()}
@@ -103,13 +106,15 @@ def run_sequence(frames: list[Any], setup: Any, variant: str, detector: str, see
     tracker = Tracker(setup.config.tracking) if variant == "tracked" else None
     path = FrameFitter(setup.config, setup.fitter, tracker, setup.warm_fitter if tracker else None)
     people: dict[int, PersonTrack] = {p.person_id: PersonTrack() for p in frames[0].people}
-    seconds, fitted = 0.0, 0
+    seconds, fitted, warm_seconds = 0.0, 0, []
     for sim in frames:
         frame = sim.frame
         if detector == "anonymous":
             frame = dataclasses.replace(frame, person_ids=np.full(len(frame.person_ids), -1, dtype=np.int64))
         result = path.fit(frame)
         seconds += result.latency.get("fit", 0.0)
+        if "warm_fit_per_person" in result.latency:
+            warm_seconds.append(result.latency["warm_fit_per_person"])
         fitted += len(result.fits)
         matched = _match(result.fits, sim)
         for p in sim.people:
@@ -119,7 +124,7 @@ def run_sequence(frames: list[Any], setup: Any, variant: str, detector: str, see
             track.fit.append(None if fit is None else np.asarray(fit.joints, np.float64))
             track.track_id.append(None if fit is None else fit.person_id)
             track.flags.append(set() if fit is None else set(fit.flags))
-    return RunResult(seed, variant, detector, people, seconds, fitted)
+    return RunResult(seed, variant, detector, people, seconds, fitted, warm_seconds)
 
 
 @dataclass
@@ -149,8 +154,13 @@ def summarize(runs: list[RunResult]) -> list[dict[str, Any]]:
                 "id_switches": int(sum(f["id_switches"] for f in figures)),
                 "warm_share": warm / fits if fits else 0.0,
                 "ms_per_person_frame": 1e3 * sum(r.seconds for r in pick) / max(fits, 1),
+                "warm_ms_per_person": _median_ms([s for r in pick for s in r.warm_seconds]),
             })
     return rows
+
+
+def _median_ms(seconds: list[float]) -> float:
+    return 1e3 * float(np.median(seconds)) if seconds else float("nan")
 
 
 def _mean(figures: list[dict[str, float]], key: str, weight: str) -> float:
@@ -160,12 +170,14 @@ def _mean(figures: list[dict[str, float]], key: str, weight: str) -> float:
 
 def markdown(rows: list[dict[str, Any]]) -> str:
     head = ("run", "detector", "people", "fitted / frames", "MPJPE mm", "PA-MPJPE mm", "accel. error mm/frame²",
-            "id switches", "warm fits", "ms / person / frame")
+            "id switches", "warm fits", "ms / person / frame", "warm fit ms / person (median)")
     lines = ["| " + " | ".join(head) + " |", "|---|---|" + "---:|" * (len(head) - 2)]
     for r in rows:
         lines.append(f"| {r['variant']} | {r['detector']} | {r['people']} | {r['fitted']} / {r['frames']} | "
                      f"{r['mpjpe_mm']:.1f} | {r['pa_mpjpe_mm']:.1f} | {r['accel_error_mm']:.1f} | "
-                     f"{r['id_switches']} | {100 * r['warm_share']:.0f} % | {r['ms_per_person_frame']:.0f} |")
+                     f"{r['id_switches']} | {100 * r['warm_share']:.0f} % | {r['ms_per_person_frame']:.0f} | "
+                     + ("-" if not np.isfinite(r["warm_ms_per_person"]) else f"{r['warm_ms_per_person']:.0f}")
+                     + " |")
     return "\n".join(lines)
 
 
