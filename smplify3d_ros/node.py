@@ -541,11 +541,16 @@ class Smplify3dNode(Node):
 
     def _on_synced(self, names: list[str], *msgs: Any) -> None:
         by_name = dict(zip(names, msgs, strict=True))
-        self._queue.put(FrameMessages(
+        frame = FrameMessages(
             camera_info=by_name["camera_info"], points=by_name["points"], keypoints=by_name["keypoints"],
             image=by_name.get("image"), compressed=self.node_config.topics.compressed,
             received_s=time.monotonic(),
-        ))
+        )
+        try:  # how late the set was complete after its stamp: sensor, detector and transport delay
+            frame.arrival_s = (self.get_clock().now().nanoseconds - frame.stamp_ns) * 1e-9
+        except Exception:  # noqa: BLE001 - a header the worker counts as bad
+            pass
+        self._queue.put(frame)
 
     # -- the worker ---------------------------------------------------------------------------------------
     def _work(self) -> None:
@@ -555,6 +560,8 @@ class Smplify3dNode(Node):
                 continue
             try:
                 self.processor.stats.record("queue", time.monotonic() - msgs.received_s)
+                if msgs.arrival_s is not None and msgs.arrival_s >= 0.0:  # the stats are the worker's alone
+                    self.processor.stats.record("arrival", msgs.arrival_s)
                 result = self.processor.process(msgs)  # never raises for bad input
                 self._processor_values = self.processor.stats.values()
                 if self._stopping.is_set():

@@ -138,6 +138,11 @@ def play_main(argv: list[str]) -> int:
         frames, duration = player.play(bag, speed, threading.Event())
         print(json.dumps({"frames": frames, "duration_s": duration}), flush=True)
         node.destroy_node()
+    except KeyboardInterrupt:
+        return 130
+    except Exception as e:  # noqa: BLE001 - one line for the user, not a traceback
+        print(f"smplify3d bench-live player: {bag}: {type(e).__name__}: {e}", file=sys.stderr)
+        return 1
     finally:
         rclpy.try_shutdown()
     return 0
@@ -246,7 +251,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.bag.exists():
         print(f"smplify3d bench-live: {args.bag} does not exist", file=sys.stderr)
         return 2
-    result = run_live(args.bag, args.params, dict(args.parameters), args.speed, args.settle, args.in_process_player)
+    try:
+        result = run_live(args.bag, args.params, dict(args.parameters), args.speed, args.settle,
+                          args.in_process_player)
+    except RuntimeError as e:  # the player process failed (it said why on stderr)
+        print(f"smplify3d bench-live: {e}", file=sys.stderr)
+        return 1
     print(result.text())
     if args.json is not None:
         lat = result.latencies_ms

@@ -68,6 +68,7 @@ class FrameMessages:
     image: Any | None = None  # sensor_msgs/Image or CompressedImage; None: run without the image
     compressed: bool = False  # `image` is a CompressedImage
     received_s: float = 0.0  # time.monotonic() when the set was complete (queue latency)
+    arrival_s: float | None = None  # node clock minus the stamp when the set was complete (None: unknown)
 
     @property
     def stamp(self) -> Any:
