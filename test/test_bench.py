@@ -193,16 +193,20 @@ def test_seconds_per_person_is_each_persons_share_of_the_fit_call():
 
 
 def test_sequences_report_the_warm_fit_time_per_person(tmp_path, capsys):
-    """`--sequences` on a 3-frame walk: the tracked runs time their warm fits (frames 2 and 3 are warm),
-    the single-frame runs have none, and every figure lands in the JSON."""
+    """`--sequences` on a 5-frame walk, every second frame fitted (frames 0, 2 and 4): the tracked runs
+    time their warm fits (the last two are warm), the single-frame runs have none, and every figure
+    lands in the JSON."""
     out = tmp_path / "sequences.json"
-    args = parse(["--sequences", "walk", "--scenes", "1", "--frames", "3", "--json", str(out), "--no-progress",
-                  *FAST])  # fmt: skip
+    args = parse(["--sequences", "walk", "--scenes", "1", "--frames", "5", "--frame-step", "2", "--json", str(out),
+                  "--no-progress", *FAST])  # fmt: skip
     assert cli.run(args) == 0
-    rows = {(r["variant"], r["detector"]): r for r in json.loads(out.read_text())["rows"]}
+    doc = json.loads(out.read_text())
+    assert doc["meta"]["frame_step"] == 2
+    rows = {(r["variant"], r["detector"]): r for r in doc["rows"]}
     assert set(rows) == {(v, d) for v in ("tracked", "single_frame") for d in ("track_ids", "anonymous")}
     tracked = rows[("tracked", "track_ids")]
     assert tracked["fitted"] == 3 and tracked["warm_share"] == pytest.approx(2 / 3)
     assert 0.0 < tracked["warm_ms_per_person"] < tracked["ms_per_person_frame"] * 3
     assert np.isnan(rows[("single_frame", "track_ids")]["warm_ms_per_person"])
     assert "warm fit ms / person (median)" in capsys.readouterr().out
+    assert cli.run(parse(["--sequences", "walk", "--frame-step", "0", "--no-progress"])) == 2

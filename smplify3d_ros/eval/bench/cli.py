@@ -76,6 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="track people through 10 Hz sequences (sim.sequence.scenarios, default people) "
                              "instead of single scenes: tracked vs single-frame, with and without detector ids")
     parser.add_argument("--frames", type=int, default=40, help="frames per sequence (--sequences; default 40)")
+    parser.add_argument("--frame-step", type=int, default=1, metavar="N",
+                        help="fit every N-th frame of each sequence (--sequences): a node that keeps up with "
+                        "10 Hz / N only (default 1)")
     parser.add_argument("--seed", type=int, default=None,
                         help="seed of the first scene (default: sim.bench.report_seed_start, 1000: the report "
                         "seeds; seeds 0-999 are for tuning)")
