@@ -206,10 +206,11 @@ class FrameFitter:
             for i, fit in zip(warm, warm_results, strict=True):
                 if not self._lost(fit, people[i]):
                     warm_fits[i] = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
-        refresh = self._refreshes_due([i for i in warm_fits], people)
+        refresh = self._refreshes_due(list(warm_fits), people)
         cold = [i for i in range(len(people)) if i not in warm_fits or i in refresh]
         for i in refresh:
-            tracker.track(people[i].person_id).last_refresh_frame = tracker.track(people[i].person_id).frames
+            track = tracker.track(people[i].person_id)
+            track.last_refresh_frame = track.frames
         fits = dict(warm_fits)
         if cold:
             cold_people = [replace(people[i], hypothesis=_as_hypothesis(warm_start[i])) if i in refresh

@@ -181,7 +181,8 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
     try:
         node = create_node({"params_file": params or "jackal_vlp16", **overrides})
         helper = Node("smplify3d_bench_live")
-        player = _Player(input_topics(node.node_config), helper) if in_process_player else None
+        topics = input_topics(node.node_config)
+        player = _Player(topics, helper) if in_process_player else None
         factory = RclpyFactory()
         lock = threading.Lock()
 
@@ -209,7 +210,7 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
             time.sleep(1.0)  # discovery
             result.frames_played, result.duration_s = player.play(bag, speed, threading.Event())
         else:
-            result.frames_played, result.duration_s = _play_in_child(bag, input_topics(node.node_config), speed)
+            result.frames_played, result.duration_s = _play_in_child(bag, topics, speed)
         time.sleep(settle_s)  # the last frame's fit and one diagnostics period
     finally:
         if executor is not None:

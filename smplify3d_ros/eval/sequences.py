@@ -185,6 +185,10 @@ def markdown(rows: list[dict[str, Any]]) -> str:
 
 def run(args: Any) -> int:
     """The `--sequences` branch of `smplify3d bench` (see the module docstring)."""
+    step = args.frame_step
+    if step < 1:  # before anything loads
+        print("smplify3d bench: --frame-step must be >= 1", file=sys.stderr)
+        return 2
     from tqdm import tqdm
 
     from smplify3d_ros.config import load_config
@@ -202,10 +206,6 @@ def run(args: Any) -> int:
     seeds = range(first, first + args.scenes)
     runs: list[RunResult] = []
     start = time.perf_counter()
-    step = args.frame_step
-    if step < 1:
-        print("smplify3d bench: --frame-step must be >= 1", file=sys.stderr)
-        return 2
     for seed in tqdm(seeds, desc="sequences", unit="seq", disable=args.no_progress, file=sys.stderr):
         frames = list(simulate_sequence(seed, sim, scenario, args.frames, 10.0, sensor=sensor))[::step]
         for variant in VARIANTS:
