@@ -377,6 +377,10 @@ def test_config_rejects_out_of_range_values():
         make_config(cluster_voxel_m=1.0)
     with pytest.raises(ConfigError, match="refuting_parts"):
         make_config(refuting_parts=["torso", "tail"])
+    with pytest.raises(ConfigError, match="hidden_parts"):
+        make_config(hidden_parts=["tail"])
+    with pytest.raises(ConfigError, match="hidden_weight"):
+        make_config(hidden_weight=-1.0)
 
 
 def test_camera_geometry_of_the_test_rig():
@@ -406,7 +410,9 @@ def test_a_few_wall_points_beside_a_thin_part_do_not_outvote_the_body():
     """A simulated robot-path scene (seed 8 of the bench's tuning seeds, 2-8 m): a child running 7.2 m
     out with a wall 3.3 m behind. Beside the child's neck and thigh the core shows a few more wall points
     than body points; with `refute_ratio` 1 those parts refuted the child's own cluster and the wall was
-    taken (the fit then stood 3.4 m off). With the shipped ratio (2) the body's own points win."""
+    taken (the fit then stood 3.4 m off). With the shipped ratio (2) the body's own points win. (The
+    wall would also hide the child's torso and head, which the hidden-part penalty counts against it:
+    the counterfactual switches that off too.)"""
     from smplify3d_ros.frame_fitter import extract_frame_people
     from smplify3d_ros.sim.config import load_sim_config
     from smplify3d_ros.sim.world import simulate_scenario
@@ -415,9 +421,34 @@ def test_a_few_wall_points_beside_a_thin_part_do_not_outvote_the_body():
     child = list(sim.frame.person_ids).index(0)
     own = np.flatnonzero(sim.point_labels == 0)
     assert len(own) >= 30
-    for config, keeps_own in ((make_config(refute_ratio=1.0), False), (CONFIG, True)):
+    for config, keeps_own in (
+        (make_config(refute_ratio=1.0, hidden_weight=0.0), False),
+        (make_config(refute_ratio=1.0), True),
+        (CONFIG, True),
+    ):
         _, result = extract_frame_people(sim.frame, config)
         taken = result.people[child].indices
         correct = np.isin(taken, own)
         found = len(taken) > 0 and correct.mean() > 0.9 and len(taken) >= 0.9 * len(own)
         assert found == keeps_own, (config.refute_ratio, len(taken), int(correct.sum()))
+
+
+def test_a_wall_patch_that_would_hide_the_torso_and_head_is_not_the_person():
+    """A simulated robot-path scene (seed 29 of the bench's tuning seeds): a person leaning back against
+    a post 8.3 m out is one cluster with the post, which spills out of their box; past their shoulder, a
+    small patch of the wall 15 m out lies inside the box and scored higher (it is bounded, and nothing
+    behind it refutes it), so the fit stood 4.5 m off. Under that hypothesis the person's own cluster
+    would hide the torso and head their keypoints show; with the hidden-part penalty the body wins."""
+    from smplify3d_ros.frame_fitter import extract_frame_people
+    from smplify3d_ros.sim.config import load_sim_config
+    from smplify3d_ros.sim.world import simulate_scenario
+
+    sim = simulate_scenario(29, load_sim_config(), "robot", sensor="vlp16", n_people=3, distance_range=(1.5, 15.0))
+    leaning = list(sim.frame.person_ids).index(2)
+    own = np.flatnonzero(sim.point_labels == 2)
+    assert len(own) >= 15
+    for config, keeps_own in ((make_config(hidden_weight=0.0), False), (CONFIG, True)):
+        _, result = extract_frame_people(sim.frame, config)
+        taken = result.people[leaning].indices
+        found = np.isin(own, taken).mean() >= 0.9
+        assert found == keeps_own, (config.hidden_weight, len(taken), int(np.isin(taken, own).sum()))

@@ -10,7 +10,7 @@ bbox (`in_box`), in the bbox's surroundings (`in_context`, `context_pad` further
 assigned), inside k's body mask (`in_mask`: within `mask_radius_m` of a skeleton segment) and inside
 k's mask only (`exclusive`: no other skeleton's mask covers them). Each mask point belongs to the
 body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster j is person k" is
-  (covered parts - refuted parts) x isolation,
+  (covered parts - refuted parts - hidden_weight x hidden parts) x isolation,
   - covered parts: parts on which j has mask points, counting 1 with an exclusive point and
     `shared_weight` with only points that another skeleton also covers. Counting parts, not points,
     makes the score independent of range: a box in front of the legs is closer, hence denser, than
@@ -23,6 +23,10 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
     is narrower than the core, and keypoint noise moves the core off a thin part, so that a few points
     of the wall seen beside it must not outvote the body's own. Only parts wider than the core refute
     (`refuting_parts`).
+  - hidden parts: under hypothesis j, a torso or head (`hidden_parts`) whose core holds `refute_ratio`
+    times more points of clusters nearer than j than of j is hidden by them; yet its keypoints were
+    seen. Each weighs `hidden_weight` against j: a patch of wall seen past the shoulder of a person merged with the post
+    they lean on is not refuted (the person is in front of it), but it would hide their whole body.
   - isolation: how much j stands out from a surface seen through the bbox, the larger of
       purity: in_mask / in_box is 1 for a body (it fills its mask, not the bbox around it), and for
         a wall the fraction of the bbox that the mask covers at the wall's depth (`mask_fraction`,
@@ -173,27 +177,35 @@ def _grouped_median(groups: np.ndarray, values: np.ndarray, n_groups: int) -> np
 def _contradicted_parts(
     z: np.ndarray, clusters: np.ndarray, parts: np.ndarray, hypotheses: np.ndarray,
     hypothesis_depth: np.ndarray, own_core: np.ndarray, config: ExtractionConfig,
-) -> np.ndarray:
-    """(H,) for each hypothesis "cluster j is this person": body parts that refute it.
+) -> tuple[np.ndarray, np.ndarray]:
+    """(H,) for each hypothesis "cluster j is this person": body parts that refute it, and parts that
+    it would have hidden.
 
     A body hides what is behind it, so the skeleton's core (points within `core_radius_m`) shows the
     body itself or an occluder in front of it, never the background. A part refutes hypothesis j when
     its core holds `refute_ratio` times more points of other clusters farther than j (by
-    `depth_tolerance_m`) than of j.
-    Only `refuting_parts` take part: those wider than the core (torso, head, thighs), since beside a
-    thin forearm the core already shows what is behind it; and only segments whose keypoints score at
-    least `refute_min_score`, since a guessed joint puts the core beside the body.
+    `depth_tolerance_m`) than of j. Only `refuting_parts` refute: those wider than the core (torso, head,
+    thighs), since beside a thin forearm the core already shows what is behind it; and only segments
+    whose keypoints score at least `refute_min_score`, since a guessed joint puts the core beside the
+    body. One of the `hidden_parts` (torso, head) is hidden under hypothesis j when its core holds that
+    many times more points of clusters nearer than j: j can still be the person (someone half behind
+    another), but those keypoints were seen with confidence, so each weighs `hidden_weight` against j.
+    Legs are not counted: a detector reports legs behind a box with confidence (hallucinated).
     z, clusters, parts: depth, cluster and body part of the person's core points; own_core: (H, parts)
     core points of each hypothesis cluster per part.
     """
     if len(hypotheses) == 0 or len(z) == 0:
-        return np.zeros(len(hypotheses))
-    behind = (z[None, :] > hypothesis_depth[:, None] + config.depth_tolerance_m) & (
-        clusters[None, :] != hypotheses[:, None]
-    )
+        return np.zeros(len(hypotheses)), np.zeros(len(hypotheses))
+    other = clusters[None, :] != hypotheses[:, None]
+    behind = (z[None, :] > hypothesis_depth[:, None] + config.depth_tolerance_m) & other
+    before = (z[None, :] < hypothesis_depth[:, None] - config.depth_tolerance_m) & other
     one_hot = np.eye(own_core.shape[1])[parts]  # (n, parts)
-    refuting = np.isin(np.arange(own_core.shape[1]), [PART_INDEX[p] for p in config.refuting_parts])
-    return ((behind.astype(np.float64) @ one_hot > config.refute_ratio * own_core) & refuting).sum(axis=1)
+
+    def outvoted(selection: np.ndarray, part_names: list[str]) -> np.ndarray:
+        counted = np.isin(np.arange(own_core.shape[1]), [PART_INDEX[p] for p in part_names])
+        return ((selection.astype(np.float64) @ one_hot > config.refute_ratio * own_core) & counted).sum(axis=1)
+
+    return outvoted(behind, config.refuting_parts), outvoted(before, config.hidden_parts)
 
 
 def mask_fraction(
@@ -224,7 +236,8 @@ def _main_clusters(
 
     counts: (P, C) points of each cluster "in_box", "in_context" (around the box), "in_mask",
     "exclusive"; coverage: (P, C) weighted count of body parts covered; contradicted: (P, C) parts
-    whose core shows more of something behind the cluster than of the cluster; mask_cover: (P, C)
+    whose core shows more of something behind the cluster than of the cluster, plus `hidden_weight` x
+    those whose core shows more of something in front of it; mask_cover: (P, C)
     fraction of the bbox the mask covers at the cluster's depth; box_fraction: (P,) the bbox's share
     of bbox + context; depth: (P, C) median depth of the mask points; extent: (P,) skeleton size;
     expected_depth: optional (P, 2) expected depth and tolerance per person (NaN: none).
@@ -381,10 +394,11 @@ def _score_clusters(
         hypotheses = np.flatnonzero(np.isfinite(depth[k]))
         if len(hypotheses) == 0:
             continue
-        contradicted[k, hypotheses] = _contradicted_parts(
+        refuted, hidden = _contradicted_parts(
             z[core[k]], clusters[core[k]], g.part[k, core[k]], hypotheses, depth[k, hypotheses],
             own_core[k, hypotheses], config,
         )
+        contradicted[k, hypotheses] = refuted + config.hidden_weight * hidden
         fraction[k, hypotheses] = mask_fraction(skeletons[k], depth[k, hypotheses], camera, config)
     counts = {"in_box": count(g.box), "in_context": count(g.context), "in_mask": count(mask),
               "exclusive": count(exclusive)}

@@ -52,6 +52,8 @@ class ExtractionConfig:
     refuting_parts: list[str]  # body parts (keypoints.BODY_PARTS) wide enough to refute a cluster
     refute_min_score: float  # only segments whose keypoints score at least this refute a cluster
     refute_ratio: float  # a part refutes a cluster when its core holds this many times more points behind it
+    hidden_parts: list[str]  # body parts (keypoints.BODY_PARTS) that count as hidden by points in front
+    hidden_weight: float  # score lost per hidden part whose core shows that many times more points in front of it
     depth_tolerance_m: float  # depth spread of one body: farther is behind it, nearer may join it
     secondary_link_m: float  # extra clusters join a body across gaps up to this (clustering space)
     body_depth_window_m: float  # a person's points lie within this depth of its median depth
@@ -94,6 +96,9 @@ class ExtractionConfig:
         require(not unknown, f"refuting_parts: unknown body parts {unknown}; known: {list(PART_NAMES)}")
         require(0.0 <= self.refute_min_score <= 1.0, "refute_min_score must be in [0, 1]")
         require(self.refute_ratio >= 1.0, "refute_ratio must be >= 1")
+        unknown = sorted(set(self.hidden_parts) - set(PART_NAMES))
+        require(not unknown, f"hidden_parts: unknown body parts {unknown}; known: {list(PART_NAMES)}")
+        require(self.hidden_weight >= 0.0, "hidden_weight must be >= 0")
         require(self.depth_tolerance_m >= 0.0, "depth_tolerance_m must be >= 0")
         require(self.secondary_link_m >= 0.0, "secondary_link_m must be >= 0")
         require(self.body_depth_window_m > 0.0, "body_depth_window_m must be > 0")
