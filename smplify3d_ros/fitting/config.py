@@ -70,6 +70,7 @@ class InitConfig:
     hip_width: float
     ankle_height: float
     lidar_surface_offset: float
+    points_min_depth_ratio: float
     keypoint_conf: float
     torso_box_pad: float
     torso_depth_band: float
@@ -100,6 +101,7 @@ class InitConfig:
         for name in ("lidar_surface_offset", "ankle_height", "torso_box_pad",
                      "limb_surface_offset", "refine_chamfer", "refine_keypoint_depth", "hypothesis_merge_deg"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
+        require(0.0 <= self.points_min_depth_ratio < 1.0, "points_min_depth_ratio must be in [0, 1)")
         require(self.refine_iterations >= 0, "refine_iterations must be >= 0")
         require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")
         require(self.hypothesis_iterations >= 0, "hypothesis_iterations must be >= 0 (at most refine_iterations run)")

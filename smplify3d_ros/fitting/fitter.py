@@ -38,6 +38,7 @@ from smplify3d_ros.types import (
     FLAG_ICP_NOT_CONVERGED,
     FLAG_IMAGE_ONLY,
     FLAG_LIDAR_MISMATCH,
+    FLAG_POINTS_TOO_NEAR,
     BodyFit,
     BodyParams,
     FitQuality,
@@ -165,15 +166,20 @@ class Fitter:
             for i, occluded in enumerate(occluded_image):
                 for part in np.flatnonzero(occluded):
                     occluded_joints[i, self.model.part_joint_index[part]] = True
-        use_lidar = np.array([len(p.points) >= cfg.min_points for p in people])
+        people = list(people)
         flags: list[set[str]] = [set() for _ in people]
+        for i, p in enumerate(people):
+            if initializer.points_too_near(p, np.asarray(K, np.float64), cfg.init):
+                people[i] = dataclasses.replace(p, points=p.points[:0])  # an occluder's: fitted from the image
+                flags[i].add(FLAG_POINTS_TOO_NEAR)
+        use_lidar = np.array([len(p.points) >= cfg.min_points for p in people])
         for i, p in enumerate(people):
             if not use_lidar[i]:
                 flags[i].add(FLAG_IMAGE_ONLY)
             if (p.keypoints[:, 2] >= cfg.init.keypoint_conf).sum() < cfg.min_keypoints:
                 flags[i].add(FLAG_FEW_KEYPOINTS)
         return Batch(
-            people=list(people),
+            people=people,
             K=torch.as_tensor(np.asarray(K, np.float64), dtype=self.dtype, device=self.device),
             lidar_origin=np.zeros(3) if lidar_origin is None else np.asarray(lidar_origin, np.float64),
             options=options,
