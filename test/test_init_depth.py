@@ -1,0 +1,87 @@
+"""Depth of people the LiDAR barely sees: image size cues, and points that belong to an occluder."""
+
+import dataclasses
+
+import numpy as np
+import torch
+
+from smplify3d_ros.config import load_config
+from smplify3d_ros.eval.synthetic import default_intrinsics, random_pose, sample_surface
+from smplify3d_ros.fitting.fitter import Fitter
+from smplify3d_ros.fitting.init import estimate_depth, ground_depth, points_too_near, upright_root_orient
+from smplify3d_ros.fitting.losses import project
+from smplify3d_ros.fitting.visibility import front_facing
+from smplify3d_ros.keypoints import KP
+from smplify3d_ros.types import FLAG_IMAGE_ONLY, FLAG_POINTS_TOO_NEAR, BodyParams, PersonObservation
+
+
+def _person_on_ground(model, distance=8.0):
+    """An adult of the model's mean shape standing `distance` m out, every keypoint confident (0.5 px
+    noise), their points on the front of the body, and the ground plane under their feet (level camera:
+    up is −y, so the plane n·p + d = 0 has n = (0, −1, 0) and d = the ground's y)."""
+    K = default_intrinsics()
+    rng = np.random.default_rng(3)
+    truth = BodyParams(model.name, model.mean_shape().cpu().double().numpy(),
+                       random_pose(model, rng, 0.2), upright_root_orient(0.4),
+                       np.array([0.6, -0.45, distance]))  # camera ~0.4 m above the floor (Jackal)
+    body = model.posed([truth])[0]
+    uv = project(torch.as_tensor(body.keypoints3d)[None], torch.as_tensor(K, dtype=torch.float64))[0].numpy()
+    kp = np.concatenate([uv + 0.5 * rng.standard_normal(uv.shape), np.ones((len(uv), 1))], 1)
+    faces = model.faces.cpu().numpy()
+    front = front_facing(body.vertices, faces, np.zeros(3), 0.0)
+    points = sample_surface(body.vertices, faces[front], 150, 0.01, rng).astype(np.float32)
+    ankles_y = body.keypoints3d[[KP["left_ankle"], KP["right_ankle"]], 1]
+    ground = np.array([0.0, -1.0, 0.0, float(ankles_y.max()) + load_config().fitting.init.ankle_height])
+    bbox = np.array([*kp[:, :2].min(0), *kp[:, :2].max(0)])
+    obs = PersonObservation(0, kp, bbox, points, ground=ground)
+    return obs, body.joints[0], K
+
+
+def test_a_raised_foot_does_not_push_an_unseen_person_away(anny_model):
+    """Without points, ground contact is one cue of three: a foot raised by a few pixels (a step, a
+    detector's error) meets the ground metres farther at 8 m, and the nearest cue takes over."""
+    cfg = load_config().fitting.init
+    obs, pelvis, K = _person_on_ground(anny_model)
+    obs = dataclasses.replace(obs, points=obs.points[:0])
+    true_z = float(pelvis[2])
+    assert abs(estimate_depth(obs, K, cfg, use_points=False) / true_z - 1) < 0.15
+    raised = obs.keypoints.copy()
+    raised[[KP["left_ankle"], KP["right_ankle"]], 1] -= 8.0  # both feet 8 px up: the lower still decides
+    raised_obs = dataclasses.replace(obs, keypoints=raised)
+    assert ground_depth(raised_obs, K, cfg) / true_z - 1 > 0.3  # ground contact alone is far off
+    assert abs(estimate_depth(raised_obs, K, cfg, use_points=False) / true_z - 1) < 0.2
+
+
+def _occluder_points(obs, K, depth, n=200, seed=0):
+    """Points of a flat occluder at `depth` covering the lower two thirds of the person's box."""
+    rng = np.random.default_rng(seed)
+    x0, y0, x1, y1 = obs.bbox
+    u = rng.uniform(x0, x1, n)
+    v = rng.uniform(y0 + (y1 - y0) / 3, y1, n)
+    return np.column_stack([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth,
+                            np.full(n, depth)]).astype(np.float32)
+
+
+def test_an_occluders_points_are_not_taken_for_a_far_person(anny_model):
+    """Points 2.5 m out for a person whose whole body shows 8 m out: no foreshortening shrinks every
+    cue fourfold, so they are dropped (flag points_too_near) and the person is fitted from the image,
+    near their true depth; with the check off (ratio 0) the fit stands on the occluder."""
+    config = load_config().fitting
+    obs, pelvis, K = _person_on_ground(anny_model)
+    obs = dataclasses.replace(obs, points=_occluder_points(obs, K, 2.5))
+    true_z = float(pelvis[2])
+    assert points_too_near(obs, K, config.init)
+    fit = Fitter(config, anny_model).fit([obs], K)[0]
+    assert {FLAG_POINTS_TOO_NEAR, FLAG_IMAGE_ONLY} <= fit.flags
+    assert abs(fit.joints[0, 2] / true_z - 1) < 0.2, fit.joints[0]
+    off = dataclasses.replace(config, init=dataclasses.replace(config.init, points_min_depth_ratio=0.0))
+    assert not points_too_near(obs, K, off.init)
+    fit = Fitter(off, anny_model).fit([obs], K)[0]
+    assert FLAG_POINTS_TOO_NEAR not in fit.flags
+    assert fit.joints[0, 2] < 0.5 * true_z, fit.joints[0]
+
+
+def test_a_persons_own_points_are_kept(anny_model):
+    cfg = load_config().fitting.init
+    obs, _, K = _person_on_ground(anny_model)
+    assert len(obs.points) and not points_too_near(obs, K, cfg)
