@@ -168,8 +168,9 @@ class Fitter:
                     occluded_joints[i, self.model.part_joint_index[part]] = True
         people = list(people)
         flags: list[set[str]] = [set() for _ in people]
+        K = np.asarray(K, np.float64)
         for i, p in enumerate(people):
-            if initializer.points_too_near(p, np.asarray(K, np.float64), cfg.init):
+            if initializer.points_too_near(p, K, cfg.init):
                 people[i] = dataclasses.replace(p, points=p.points[:0])  # an occluder's: fitted from the image
                 flags[i].add(FLAG_POINTS_TOO_NEAR)
         use_lidar = np.array([len(p.points) >= cfg.min_points for p in people])
@@ -180,7 +181,7 @@ class Fitter:
                 flags[i].add(FLAG_FEW_KEYPOINTS)
         return Batch(
             people=people,
-            K=torch.as_tensor(np.asarray(K, np.float64), dtype=self.dtype, device=self.device),
+            K=torch.as_tensor(K, dtype=self.dtype, device=self.device),
             lidar_origin=np.zeros(3) if lidar_origin is None else np.asarray(lidar_origin, np.float64),
             options=options,
             rng=np.random.default_rng(cfg.seed),

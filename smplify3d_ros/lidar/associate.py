@@ -25,8 +25,9 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
     (`refuting_parts`).
   - hidden parts: under hypothesis j, a torso or head (`hidden_parts`) whose core holds `refute_ratio`
     times more points of clusters nearer than j than of j is hidden by them; yet its keypoints were
-    seen. Each weighs `hidden_weight` against j: a patch of wall seen past the shoulder of a person merged with the post
-    they lean on is not refuted (the person is in front of it), but it would hide their whole body.
+    seen. Each weighs `hidden_weight` against j: a patch of wall seen past the shoulder of a person
+    merged with the post they lean on is not refuted (the person is in front of it), but it would
+    hide their whole body.
   - isolation: how much j stands out from a surface seen through the bbox, the larger of
       purity: in_mask / in_box is 1 for a body (it fills its mask, not the bbox around it), and for
         a wall the fraction of the bbox that the mask covers at the wall's depth (`mask_fraction`,
