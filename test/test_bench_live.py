@@ -20,3 +20,36 @@ def test_the_node_is_timed_live_on_a_bag_played_by_a_process_of_its_own():
     for key in ("latency_ms.arrival.p50", "latency_ms.fit.p50", "sync.matched"):
         assert key in result.diagnostics, sorted(result.diagnostics)
     assert "output rate" in result.text()
+
+
+def test_the_node_subscribes_to_the_image_topic_the_bag_has():
+    """A bag that holds only compressed images (bags/people_ids) is subscribed as compressed, as the replay
+    reads it; a raw-image bag keeps the raw topic; an explicit parameter still wins over the bag."""
+    pytest.importorskip("rclpy")
+    from node_support import REPO
+
+    from smplify3d_ros.eval.live import bag_topic_parameters
+
+    compressed = bag_topic_parameters(REPO / "bags" / "people_ids", None, {})
+    assert compressed["topics.compressed_image"] == "/camera/color/image_raw/compressed"
+    assert compressed["topics.image"] == ""
+    assert compressed["topics.points"] == "/velodyne_points" and compressed["topics.keypoints"] == "/keypoints"
+    raw = bag_topic_parameters(REPO / "bags" / "walk", None, {})
+    assert raw["topics.image"] == "/camera/color/image_raw" and raw["topics.compressed_image"] == ""
+    chosen = bag_topic_parameters(REPO / "bags" / "walk", None,
+                                  {"topics.compressed_image": "/camera/color/image_raw/compressed"})
+    assert chosen["topics.compressed_image"] == "/camera/color/image_raw/compressed" and chosen["topics.image"] == ""
+
+
+def test_a_bag_without_the_inputs_is_one_line_not_a_traceback(tmp_path, capsys):
+    pytest.importorskip("rclpy")
+    import argparse
+
+    from smplify3d_ros.eval.live import add_arguments, run
+
+    (tmp_path / "not_a_bag").mkdir()
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    assert run(parser.parse_args([str(tmp_path / "not_a_bag")])) in (1, 2)
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("smplify3d bench-live:") and "\n" not in err and "Traceback" not in err

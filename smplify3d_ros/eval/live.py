@@ -5,6 +5,9 @@ The node (`smplify3d_ros.node`) and a recorder of `~/bodies` spin in this proces
 timing, every stamp shifted by one offset so that the frames look captured now. The player runs in a
 process of its own, as a robot's camera and LiDAR drivers do (`--in-process-player`: in the node's
 process, where reading and publishing the bag competes with the fitting for Python's interpreter lock).
+The node subscribes to the bag's own input topics, found as `smplify3d replay` finds them (the profile's
+topic names where the bag has them, else the bag's only topic of the right type: a bag that holds only
+`.../compressed` images is played and subscribed as compressed); `-p topics.<name>=...` still wins.
 Printed: frames played, bodies documents received, the output rate while the bag played, and the
 latency from the image stamp to the moment `~/bodies` arrives (median, 95th percentile), plus the node's
 own counters (each stage's latency, stale frames dropped, warm and cold fits). Without rclpy it says so
@@ -27,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+DEFAULT_PROFILE = "jackal_vlp16"  # the node's own default params_file
 INPUT_TYPES = {
     "image": "sensor_msgs/msg/Image",
     "compressed_image": "sensor_msgs/msg/CompressedImage",
@@ -123,6 +127,22 @@ def input_topics(node_config: Any) -> dict[str, str]:
             "points": t.points, "keypoints": t.keypoints}
 
 
+def bag_topic_parameters(bag: Path, params: str | None, overrides: dict[str, Any]) -> dict[str, str]:
+    """The node's input-topic parameters (`topics.*`) for the topics `bag` holds, resolved as the replay
+    resolves them (`replay.reader.resolve_topics`). Raises `ReplayError` for a bag without the inputs."""
+    from smplify3d_ros.node import overrides_from_parameters
+    from smplify3d_ros.replay.reader import BagReader
+    from smplify3d_ros.runtime.config import load_node_config
+
+    node_config = load_node_config(params or DEFAULT_PROFILE, overrides_from_parameters(overrides))
+    with BagReader(bag, node_config) as reader:
+        found = reader.topics
+    image = found.image or ""
+    return {"topics.image": "" if found.compressed else image, "topics.compressed_image": image if found.compressed
+            else "", "topics.camera_info": found.camera_info, "topics.points": found.points,
+            "topics.keypoints": found.keypoints}
+
+
 def play_main(argv: list[str]) -> int:
     """The player process: `python -m smplify3d_ros.eval.live --play BAG TOPICS_JSON SPEED`. Publishes
     once its subscribers are matched, then prints `{"frames": N, "duration_s": S}` on stdout."""
@@ -179,7 +199,8 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
     result = LiveResult()
     node = helper = executor = None
     try:
-        node = create_node({"params_file": params or "jackal_vlp16", **overrides})
+        bag_topics = bag_topic_parameters(bag, params, overrides)
+        node = create_node({"params_file": params or DEFAULT_PROFILE, **bag_topics, **overrides})
         helper = Node("smplify3d_bench_live")
         topics = input_topics(node.node_config)
         player = _Player(topics, helper) if in_process_player else None
@@ -259,6 +280,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"smplify3d bench-live: {e}", file=sys.stderr)
         return 1
     print(result.text())
+    if result.frames_played == 0:
+        print(f"smplify3d bench-live: {args.bag}: no image frames were played (the node's image topic is not "
+              "in the bag; see -p topics.image=... or topics.compressed_image=...)", file=sys.stderr)
     if args.json is not None:
         lat = result.latencies_ms
         args.json.write_text(json.dumps({
