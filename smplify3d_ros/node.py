@@ -264,6 +264,7 @@ class Smplify3dNode(Node):
         # (and warned about) instead of silently ignored; _load_config re-declares the known ones typed
         super().__init__(NODE_NAME, automatically_declare_parameters_from_overrides=True, **kwargs)
         self.config, self.node_config = self._load_config()
+        from smplify3d_ros.runtime.heap import freeze_startup_heap
         from smplify3d_ros.runtime.processor import MessageProcessor  # torch: once the parameters are valid
 
         self.factory = RclpyFactory()
@@ -291,6 +292,7 @@ class Smplify3dNode(Node):
         self.qos_incompatible: Counter = Counter()  # publishers per input whose QoS cannot match ours
         self._subscribe()
         self._start_extrinsic_tf()
+        freeze_startup_heap()  # the body model and torch out of the collector's walks (runtime/heap.py)
         self._worker = threading.Thread(target=self._work, name="smplify3d_fitting", daemon=True)
         self._worker.start()
         self._timer = self.create_timer(node_cfg.diagnostics_period_s, self._publish_diagnostics)

@@ -76,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
     from smplify3d_ros.body import load_body_model
     from smplify3d_ros.config import load_config
     from smplify3d_ros.fitting.fitter import Fitter
+    from smplify3d_ros.runtime.heap import freeze_startup_heap
     from smplify3d_ros.sim.config import load_sim_config
 
     base = load_config(args.params)
@@ -85,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     for profile in args.profiles:
         config = load_config(args.params, {"fitting": {"profile": profile, "num_threads": 1}}).fitting
         fitter = Fitter(config, model)
+        freeze_startup_heap()  # as the node does after startup (runtime/heap.py)
         for batch in args.batches:
             batch = min(batch, len(people))
             groups = [[p] for p in people] if batch == 1 else [people[i : i + batch]

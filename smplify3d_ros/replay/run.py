@@ -306,6 +306,7 @@ def _run(bag: Path, out: Output | None, picture: Output | None, progress: bool, 
     from tqdm import tqdm
 
     from msg_adapters import RosbagsFactory
+    from smplify3d_ros.runtime.heap import freeze_startup_heap
     from smplify3d_ros.runtime.processor import MessageProcessor
 
     summary = ReplaySummary(str(bag))
@@ -313,6 +314,7 @@ def _run(bag: Path, out: Output | None, picture: Output | None, progress: bool, 
         processor = MessageProcessor(config, node_config, RosbagsFactory(reader.typestore), fitter=fitter,
                                      transforms=Transforms(node_config.extrinsic, reader.tf.lookup, log=log),
                                      log=log, keep_frames=picture is not None, build_outputs=out is not None)
+        freeze_startup_heap()  # as the node does: no full collection walks the body model per frame
         writer = None if out is None else _open_writer(out, reader)
         replay = _Replay(reader, processor, writer, summary, picture is not None, node_config.diagnostics_period_s)
         bar = tqdm(total=reader.message_count, unit="msg", disable=not progress, desc=bag.name, file=sys.stderr)
