@@ -278,6 +278,8 @@ class Smplify3dNode(Node):
             name: self.create_publisher(self.factory.message_class(OUTPUT_TYPES[name]), f"~/{name}", 10)
             for name in OUTPUTS if getattr(node_cfg.publish, name)
         }
+        if node_cfg.publish.lazy:
+            self.processor.skip_outputs = self._unsubscribed_outputs
         self._topic_pubs = TopicPublishers(self, node_cfg.publish.hri_forget_after_s)
         self._start_hri_outputs()
         self._diagnostics_pub = self.create_publisher(
@@ -574,6 +576,11 @@ class Smplify3dNode(Node):
             except Exception as e:  # noqa: BLE001 - keep the worker alive whatever happens
                 self.worker_errors += 1
                 self.get_logger().error(f"fitting worker: {type(e).__name__}: {clip(e)}")
+
+    def _unsubscribed_outputs(self) -> list[str]:
+        """The outputs nobody subscribes to now (publish.lazy): not built, as a mesh marker alone costs
+        10-30 ms a frame. A subscriber that comes gets the next frame's."""
+        return [name for name, pub in self._output_pubs.items() if pub.get_subscription_count() == 0]
 
     def _publish(self, publisher: Any, msg: Any) -> None:
         if publisher is None:

@@ -74,6 +74,29 @@ def test_bad_parameters_are_configuration_errors(ros, parameters, message):
         create_node(parameters, fitter=node_support.fitter()).destroy_node()
 
 
+@pytest.mark.parametrize("lazy", [True, False])
+def test_outputs_are_built_only_while_subscribed_when_lazy(ros, lazy):
+    from rclpy.node import Node
+    from std_msgs.msg import String
+
+    from smplify3d_ros.node import create_node
+
+    node = create_node({"publish.lazy": lazy}, fitter=node_support.fitter())
+    listener = Node("smplify3d_test_listener")
+    try:
+        everything = {"markers", "joints", "body_points", "people", "bodies", "clearing_points"}
+        assert set(node.processor.skip_outputs()) == (everything if lazy else set())
+        listener.create_subscription(String, "/smplify3d/bodies", lambda msg: None, 10)
+        if lazy:
+            assert node_support.wait_for(lambda: "bodies" not in node.processor.skip_outputs(), 10.0)
+            assert set(node.processor.skip_outputs()) == everything - {"bodies"}
+        else:
+            assert list(node.processor.skip_outputs()) == []
+    finally:
+        listener.destroy_node()
+        node.destroy_node()
+
+
 def test_spin_publishes_diagnostics_then_destroys_cleanly():
     with node_support.running_node({"diagnostics_period_s": 0.1}) as (node, recorder):
         assert node_support.wait_for(lambda: recorder.count("/diagnostics") >= 2, 10.0)

@@ -74,6 +74,15 @@ def test_good_frame_fits_every_person_and_builds_all_outputs(frame):
     assert {"convert", "extract", "fit", "outputs", "total"} <= set(result.latency)
 
 
+def test_outputs_nobody_subscribes_to_are_not_built(frame):
+    p = pipeline()
+    p.skip_outputs = lambda: ["markers", "clearing_points"]  # the node's publish.lazy
+    result = p.process(messages(node_support.frame_at(FACTORY, CAMERA, frame, T0)))
+    assert result.ok, result.message
+    assert {"joints", "body_points", "people", "bodies"} <= set(result.outputs)
+    assert not {"markers", "clearing_points"} & set(result.outputs)
+
+
 @pytest.mark.parametrize("kind", sorted(node_support.BAD_KINDS))
 def test_bad_input_is_a_counted_drop(kind, frame):
     p = pipeline()

@@ -135,6 +135,7 @@ class PublishConfig:
     body_points: bool  # ~/body_points
     people: bool  # ~/people
     bodies: bool  # ~/bodies
+    lazy: bool  # the node builds an output only while something subscribes to it
     mesh_max_triangles: int  # mesh marker decimation (0: every triangle)
     body_points_stride: int  # every n-th vertex on ~/body_points
     geometry_grid_m: float  # mesh markers and ~/body_points rounded to this grid, m (0: exact)

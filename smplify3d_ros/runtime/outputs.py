@@ -7,6 +7,7 @@ same in the node and in the replay's bag (`output_topic`, `output_type`).
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -119,25 +120,31 @@ class OutputBuilder:
         self.velocities = VelocityEstimator(publish.velocity_max_gap_s)
         self._marker_ids: set[int] = set()
 
-    def build(self, fits: list[BodyFit], stamp: Any, frame_id: str, frame: Frame | None = None) -> dict[str, Any]:
-        """Output name -> message, for every enabled output (empty fits: empty messages, markers deleted).
-        `frame` (the input frame, camera frame) gives the clearing fan and the 2D skeletons."""
+    def build(self, fits: list[BodyFit], stamp: Any, frame_id: str, frame: Frame | None = None,
+              skip: Collection[str] = ()) -> dict[str, Any]:
+        """Output name -> message, for every enabled output not in `skip` (outputs nobody subscribes to;
+        empty fits: empty messages, markers deleted). `frame` (the input frame, camera frame) gives the
+        clearing fan and the 2D skeletons."""
         pub, f = self.publish, self.factory
         out: dict[str, Any] = {}
-        if pub.markers:
+
+        def wanted(name: str) -> bool:
+            return getattr(pub, name) and name not in skip
+
+        if wanted("markers"):
             out["markers"], self._marker_ids = fits_to_markers(
                 fits, self.faces, stamp, frame_id, self._marker_ids, f,
                 max_triangles=pub.mesh_max_triangles or None, alpha=pub.marker_alpha, grid_m=pub.geometry_grid_m)
-        if pub.joints:
+        if wanted("joints"):
             out["joints"] = fits_to_joints_cloud(fits, stamp, frame_id, f)
-        if pub.body_points:
+        if wanted("body_points"):
             out["body_points"] = fits_to_body_points_cloud(fits, stamp, frame_id, f, pub.body_points_stride,
                                                            pub.geometry_grid_m)
-        if pub.people:
+        if wanted("people"):
             out["people"] = fits_to_pose_array(fits, stamp, frame_id, f)
-        if pub.bodies:
+        if wanted("bodies"):
             out["bodies"] = f.make("std_msgs/msg/String", data=fits_to_bodies_json(fits, stamp, frame_id))
-        if pub.clearing_points and frame is not None:
+        if wanted("clearing_points") and frame is not None:
             fan = clearing_points(frame.camera, pub.clearing_range_m, pub.clearing_resolution_m, pub.clearing_view)
             out["clearing_points"] = clearing_cloud(fan, stamp, frame.frame_id, f)
         if pub.hri:

@@ -29,6 +29,7 @@ import threading
 import time
 import traceback
 from collections import deque
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -117,6 +118,8 @@ class MessageProcessor:
                                      HriSettings(node.topics.hri_bodies))
         self.keep_frames = keep_frames
         self.build_outputs = build_outputs  # False: fits only (a replay without an output bag)
+        # the outputs not to build this frame (the node's lazy publishing: nobody subscribes to them)
+        self.skip_outputs: Callable[[], Collection[str]] = tuple
         self.stats = ProcessorStats(latency_window=node.diagnostics.latency_window)
         self.stats.tracking = None if self.tracker is None else self.tracker.stats
         self._last_stamp_ns: int | None = None
@@ -241,7 +244,7 @@ class MessageProcessor:
         fits = self._withhold_non_finite(fits)
         if self.build_outputs:
             t = time.perf_counter()
-            result.outputs = self.outputs.build(fits, result.stamp, result.frame_id, frame)
+            result.outputs = self.outputs.build(fits, result.stamp, result.frame_id, frame, self.skip_outputs())
             result.latency["outputs"] = time.perf_counter() - t
         result.fits = fits
 
