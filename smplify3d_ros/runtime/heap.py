@@ -7,7 +7,8 @@ one every few frames: measured on `bags/walk`, a pause of about 210 ms every 5 f
 50 ms frame. `gc.freeze()` moves everything alive at that point into a permanent generation that the
 collector no longer walks (the objects stay valid; they are simply never collected, which they would
 not be anyway); the full collections that follow walk the frame's own objects and take a few ms.
-The drivers call `freeze_startup_heap()` once, after building their fitter and before the first frame.
+The drivers call `freeze_startup_heap()` after building their fitter and before the first frame
+(bench-speed once per profile's fitter).
 """
 
 from __future__ import annotations
