@@ -38,8 +38,8 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
     with a prop (a seat, a carried box) whose points leave the mask; purity, a person next to a
     large object. Isolation keeps a wall from standing in for a person whom the LiDAR does not see
     (dark clothes, out of range).
-A pair qualifies with a positive score, isolation >= `min_isolation` and a plausible skeleton at the
-cluster's depth (the largest keypoint distance, scaled by the cluster's median depth, at most
+A pair qualifies with a positive score, isolation >= `min_isolation`, no surface through the box, a
+plausible skeleton at the cluster's depth (the largest keypoint distance, scaled by the cluster's median depth, at most
 `max_person_extent_m`: rejects background far behind) and, for a person whose depth is expected (a
 track's prediction), a cluster depth within that expectation's tolerance: a tracked person half hidden
 behind another keeps their own few points rather than the wall seen past their shoulder. Pairs are taken
@@ -228,10 +228,24 @@ def _isolation(fraction_in: np.ndarray, uniform_fraction: np.ndarray) -> np.ndar
     return (fraction_in - uniform_fraction) / np.maximum(1.0 - uniform_fraction, 1e-6)
 
 
+def _surface_through(g: _Geometry, z: np.ndarray, depth: np.ndarray, config: ExtractionConfig) -> np.ndarray:
+    """(P, C) bool: at cluster j's depth, the surface seen in person k's bbox goes on past both its sides."""
+    surface = np.zeros(depth.shape, dtype=bool)
+    for k in range(len(depth)):
+        hypotheses = np.flatnonzero(np.isfinite(depth[k]))
+        if len(hypotheses) == 0:
+            continue
+        at_depth = np.abs(z[None, :] - depth[k, hypotheses, None]) <= config.depth_tolerance_m  # (H, M)
+        inside = (at_depth & g.box[k]).sum(axis=1)
+        beside = np.minimum((at_depth & g.left[k]).sum(axis=1), (at_depth & g.right[k]).sum(axis=1))
+        surface[k, hypotheses] = beside >= np.maximum(config.surface_ratio * inside, config.surface_min_points)
+    return surface
+
+
 def _main_clusters(
     counts: dict[str, np.ndarray], coverage: np.ndarray, contradicted: np.ndarray,
     mask_cover: np.ndarray, box_fraction: np.ndarray, depth: np.ndarray, extent: np.ndarray,
-    config: ExtractionConfig, expected_depth: np.ndarray | None = None,
+    surface: np.ndarray, config: ExtractionConfig, expected_depth: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(P,) main cluster per person (-1: none) and (P, C) bool clusters that may be part of a body.
 
@@ -241,6 +255,7 @@ def _main_clusters(
     those whose core shows more of something in front of it; mask_cover: (P, C)
     fraction of the bbox the mask covers at the cluster's depth; box_fraction: (P,) the bbox's share
     of bbox + context; depth: (P, C) median depth of the mask points; extent: (P,) skeleton size;
+    surface: (P, C) a surface at the cluster's depth goes on past both sides of the bbox;
     expected_depth: optional (P, 2) expected depth and tolerance per person (NaN: none).
     """
     in_box, in_mask, exclusive = counts["in_box"], counts["in_mask"], counts["exclusive"]
@@ -254,7 +269,7 @@ def _main_clusters(
         if expected_depth is not None:
             expected, tolerance = expected_depth[:, :1], expected_depth[:, 1:]
             plausible &= ~(np.abs(depth - expected) > tolerance)  # NaN expectation: no constraint
-        body_like = (in_mask > 0) & plausible & (isolation >= config.min_isolation)
+        body_like = (in_mask > 0) & plausible & (isolation >= config.min_isolation) & ~surface
     main = np.full(n_people, -1)
     owners = np.zeros(n_clusters, dtype=np.int64)
     people, clusters = np.nonzero(body_like & (score > 0))
@@ -302,6 +317,8 @@ class _Geometry:
     box: np.ndarray  # in the person's padded keypoint bbox
     context: np.ndarray  # around the bbox, not in it
     box_fraction: np.ndarray  # (P,) bbox area / context area
+    left: np.ndarray  # in the bbox's rows, in the band `surface_side_width` bbox widths to its left
+    right: np.ndarray  # ... and to its right
     dist: np.ndarray  # metres beside the skeleton, at the point's depth (inf outside the bbox)
     part: np.ndarray  # body part of the nearest segment
     sure: np.ndarray  # the nearest segment is confident enough to refute
@@ -314,7 +331,8 @@ def _geometry(uv: np.ndarray, z: np.ndarray, skeletons: list[Skeleton | None], c
     xy = to_normalized(uv, camera)
     g = _Geometry(
         box=np.zeros((n_people, n_points), dtype=bool), context=np.zeros((n_people, n_points), dtype=bool),
-        box_fraction=np.zeros(n_people), dist=np.full((n_people, n_points), np.inf),
+        box_fraction=np.zeros(n_people), left=np.zeros((n_people, n_points), dtype=bool),
+        right=np.zeros((n_people, n_points), dtype=bool), dist=np.full((n_people, n_points), np.inf),
         part=np.zeros((n_people, n_points), dtype=np.int64), sure=np.zeros((n_people, n_points), dtype=bool),
         extent=np.full(n_people, np.nan),
     )
@@ -324,6 +342,11 @@ def _geometry(uv: np.ndarray, z: np.ndarray, skeletons: list[Skeleton | None], c
         box = g.box[k] = in_bbox(uv, skeleton.bbox)
         g.context[k] = in_bbox(uv, skeleton.context) & ~box
         g.box_fraction[k] = _area(skeleton.bbox) / max(_area(skeleton.context), 1e-9)
+        x0, y0, x1, y1 = skeleton.bbox
+        width = config.surface_side_width * (x1 - x0)
+        rows = (uv[:, 1] >= y0) & (uv[:, 1] <= y1)
+        g.left[k] = rows & (uv[:, 0] < x0) & (uv[:, 0] >= x0 - width)
+        g.right[k] = rows & (uv[:, 0] > x1) & (uv[:, 0] <= x1 + width)
         d, nearest = segment_distance(xy[box], skeleton)
         g.dist[k, box] = d * z[box]
         g.part[k, box] = skeleton.parts[nearest]
@@ -350,6 +373,9 @@ def associate(
     z = points[:, 2].astype(np.float64)
     g = _geometry(uv, z, skeletons, camera, config)
     mask = g.dist <= config.mask_radius_m
+    on_a_body = mask.any(axis=0)  # beside a box, that is a neighbour's body, not a surface going on
+    g.left &= ~on_a_body
+    g.right &= ~on_a_body
     main, body_like, depth = _score_clusters(g, mask, z, clusters, skeletons, camera, config, expected_depth)
     chosen, reference = _body_clusters(main, body_like, depth, g.box, coords, clusters, config)
     with np.errstate(invalid="ignore"):
@@ -403,8 +429,9 @@ def _score_clusters(
         fraction[k, hypotheses] = mask_fraction(skeletons[k], depth[k, hypotheses], camera, config)
     counts = {"in_box": count(g.box), "in_context": count(g.context), "in_mask": count(mask),
               "exclusive": count(exclusive)}
+    surface = _surface_through(g, z, depth, config)
     main, body_like = _main_clusters(
-        counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent, config,
+        counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent, surface, config,
         None if expected_depth is None else np.asarray(expected_depth, np.float64).reshape(n_people, 2),
     )
     return main, body_like, depth
