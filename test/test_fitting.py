@@ -130,6 +130,29 @@ def test_a_few_points_still_fix_the_depth_of_an_image_only_person(anny_model):
     assert depth_error < 0.3, depth_error  # the image alone would keep the 1.5 m error
 
 
+def test_a_builtin_start_holds_the_depth_its_few_points_measured(anny_model):
+    """12 m out, ten points: too few for L_3D, and the built-in initializer took its depth from them.
+    Without the `points_depth` hold the 2D stages walk the depth along the ray by the body's assumed
+    size (0.5-2 m here); with it the fit stays within a few centimetres."""
+    K = default_intrinsics()
+    for hold, limit in ((10000.0, 0.15), (0.0, None)):
+        cfg = load_config(overrides={"fitting": {"profiles": {"robot": {"weights": {"points_depth": hold}}}}})
+        fitter = Fitter(cfg.fitting, anny_model)
+        errors = []
+        for seed in range(3):
+            rng = np.random.default_rng(seed)
+            sp = make_person(anny_model, rng, K, distance=12.0, yaw=rng.uniform(-1.0, 1.0), n_points=10,
+                             point_noise=0.02, keypoint_noise_px=2.0)
+            sp.observation.init = None
+            fit = fitter.fit([sp.observation], K)[0]
+            assert FLAG_IMAGE_ONLY in fit.flags
+            errors.append(abs(fit.params.transl[2] - sp.truth.transl[2]))
+        if limit is None:
+            assert min(errors) > 0.3, errors  # the counterfactual: the depth drifts
+        else:
+            assert max(errors) < limit, errors
+
+
 def _depth_shifted_person(model, shift_m, seed=23):
     """A synthetic person whose initial estimate is the truth pushed `shift_m` along the viewing ray (the
     image cannot see that: only the points can)."""

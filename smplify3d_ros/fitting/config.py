@@ -128,12 +128,13 @@ class LossWeights:
     neutral: float  # Gaussian pose prior around the anatomical neutral, per range of motion (0 in the thesis)
     upright: float  # prior on the body's tilt from the world's up (sine of the tilt), 0: none
     image_depth: float  # holds the initial depth of people fitted without L_3D (relative error), 0: free
+    points_depth: float  # the same hold for those of them whose few points (min_points_depth) measured the depth
     sigma_px: float  # Geman-McClure σ, stages 1-2 (and single-stage)
     sigma_px_final: float  # Geman-McClure σ, stage 3
 
     def __post_init__(self) -> None:
         for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "chamfer_scale", "occlusion",
-                     "init_pose", "neutral", "upright", "image_depth"):
+                     "init_pose", "neutral", "upright", "image_depth", "points_depth"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(self.sigma_px > 0 and self.sigma_px_final > 0, "sigma_px values must be > 0")
 

@@ -297,8 +297,11 @@ class Fitter:
             visible = verts[i][masks[i]]
             if not batch.use_lidar[i]:
                 # too few points for L_3D, but enough to fix the depth along the ray, which the image
-                # cannot (an image HMR's depth errors reach metres)
-                if len(p.points) >= cfg.min_points_depth:
+                # cannot (an image HMR's depth errors reach metres). The built-in initializer took its
+                # depth from them already, and a translation fitted to a dozen points of unknown parts
+                # moves the body up or sideways as much as it corrects the depth (tuning seeds 0-39:
+                # 10-45 cm): it keeps the initializer's.
+                if len(p.points) >= cfg.min_points_depth and not batch.builtin[i]:
                     result = align_mesh_to_points(visible, p.points, translation_only)
                     if result.converged:
                         self._move(batch.state, i, result.T, verts)
@@ -427,6 +430,8 @@ class Fitter:
             init_pose=batch.state.pose.detach().clone(),
             init_transl=batch.state.transl.detach().clone(),
             use_lidar=torch.as_tensor(batch.use_lidar, device=dev),
+            depth_measured=torch.as_tensor([not batch.use_lidar[i] and len(p.points) >= self.config.min_points_depth
+                                            for i, p in enumerate(batch.people)], dtype=torch.bool, device=dev),
             pixel_scale=self._pixel_scale(batch),
             up=torch.as_tensor(np.stack([p.ground[:3] if p.ground is not None else (0.0, -1.0, 0.0)
                                          for p in batch.people]), dtype=self.dtype, device=dev),

@@ -191,12 +191,12 @@ def keypoint_depth_loss(keypoints: torch.Tensor, target: torch.Tensor, sigma: fl
     return geman_mcclure(diff, sigma).sum(-1)
 
 
-def depth_hold_residuals(transl: torch.Tensor, init_transl: torch.Tensor, use_lidar: torch.Tensor) -> torch.Tensor:
-    """(B,) (z − z₀) / z₀ for people without L_3D (0 for the others): without points, the image's scale
-    gives the depth only through the assumed body size, no better than the initializer's estimate, and a
-    free depth drifts along that ridge."""
+def depth_hold_residuals(transl: torch.Tensor, init_transl: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """(B,) √w · (z − z₀) / z₀, `weight` (B,) per person (0 for people with L_3D): without enough points
+    for L_3D, the image's scale gives the depth only through the assumed body size, no better than the
+    start's (the initializer's, or the few points'), and a free depth drifts along that ridge."""
     z0 = init_transl[:, 2].clamp(min=0.3)
-    return torch.where(use_lidar, torch.zeros_like(z0), (transl[:, 2] - init_transl[:, 2]) / z0)
+    return weight.sqrt() * (transl[:, 2] - init_transl[:, 2]) / z0
 
 
 def upright_residuals(root_orient: torch.Tensor, up: torch.Tensor) -> torch.Tensor:

@@ -76,6 +76,7 @@ class FitProblem:
     up: torch.Tensor | None = None  # (B, 3) the world's up in the camera frame (ground normal, else −y)
     _copies: dict = field(default_factory=dict, repr=False)  # `repeated`'s problems, by count
     init_transl: torch.Tensor | None = None  # (B, 3) the translation at the start (image-only depth hold)
+    depth_measured: torch.Tensor | None = None  # (B,) bool: people without L_3D whose few points gave the depth
 
     def __post_init__(self) -> None:
         if self.empty_subset is None:

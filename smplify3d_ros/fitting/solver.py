@@ -415,15 +415,27 @@ def normal_equations(model: BodyModel, state, problem, stage, profile: Optimizer
     return acc
 
 
+def depth_hold_weights(problem, profile: OptimizerProfile) -> torch.Tensor | None:
+    """(B,) weight of each person's depth hold: `image_depth` for people fitted from the image alone,
+    `points_depth` for those of them whose few points measured the depth, 0 with L_3D; None: no hold."""
+    weights = profile.weights
+    if problem.init_transl is None or (weights.image_depth <= 0 and weights.points_depth <= 0):
+        return None
+    dtype = problem.init_transl.dtype
+    measured = problem.depth_measured if problem.depth_measured is not None else torch.zeros_like(problem.use_lidar)
+    weight = torch.where(measured, torch.tensor(_w(weights.points_depth, profile), dtype=dtype),
+                         torch.tensor(_w(weights.image_depth, profile), dtype=dtype))
+    return torch.where(problem.use_lidar, torch.zeros_like(weight), weight)
+
+
 def depth_hold_block(state, problem, stage, profile: OptimizerProfile, layout: Layout, acc: Residuals) -> None:
     """`losses.depth_hold_residuals`, linear in the translation's z."""
-    weight = profile.weights.image_depth
-    if weight <= 0 or "transl" not in stage.params or problem.init_transl is None:
+    weight = depth_hold_weights(problem, profile) if "transl" in stage.params else None
+    if weight is None:
         return
-    root = _w(weight, profile) ** 0.5
-    r = root * losses.depth_hold_residuals(state.transl, problem.init_transl, problem.use_lidar)
+    r = losses.depth_hold_residuals(state.transl, problem.init_transl, weight)
     J = r.new_zeros(r.shape[0], 1, layout.size)
-    J[:, 0, 3 * layout.joints + 5] = root * (~problem.use_lidar).to(r.dtype) / problem.init_transl[:, 2].clamp(min=0.3)
+    J[:, 0, 3 * layout.joints + 5] = weight.sqrt() / problem.init_transl[:, 2].clamp(min=0.3)
     acc.add(r[:, None], J)
 
 

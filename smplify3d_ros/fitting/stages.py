@@ -102,9 +102,9 @@ def stage_loss(
         loss = loss + _w(weights.occlusion, profile) * (held * occluded).sum(-1)
         if weights.init_pose > 0:
             loss = loss + _w(weights.init_pose, profile) * (held * (1.0 - occluded)).sum(-1)
-    if weights.image_depth > 0 and "transl" in stage.params and problem.init_transl is not None:
-        loss = loss + _w(weights.image_depth, profile) * (losses.depth_hold_residuals(
-            state.transl, problem.init_transl, problem.use_lidar) ** 2)
+    hold = solver.depth_hold_weights(problem, profile) if "transl" in stage.params else None
+    if hold is not None:
+        loss = loss + losses.depth_hold_residuals(state.transl, problem.init_transl, hold) ** 2
     if stage.keypoint_depth_weight > 0 and problem.keypoint_depth is not None:
         loss = loss + _w(stage.keypoint_depth_weight, profile) * losses.keypoint_depth_loss(
             out.keypoints, problem.keypoint_depth, stage.keypoint_depth_sigma)

@@ -38,6 +38,13 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
     with a prop (a seat, a carried box) whose points leave the mask; purity, a person next to a
     large object. Isolation keeps a wall from standing in for a person whom the LiDAR does not see
     (dark clothes, out of range).
+  - a surface through the box: far away a ring or two cross a person, and purity no longer tells the
+    patch of wall behind them (which the mask covers almost as well) from the body. A body ends at its
+    sides; a wall goes on past both, or (the person at its end) far past one. j is a surface when, in
+    the bbox's rows, the bands `surface_side_width` x the bbox width to its left and to its right each
+    hold at least `surface_ratio` times the bbox's points at j's depth (within `depth_tolerance_m`), or
+    one of them `surface_one_side_ratio` times, and at least `surface_min_points`. Points on another
+    person's mask do not count: in a crowd the neighbours on both sides stand at one's own depth.
 A pair qualifies with a positive score, isolation >= `min_isolation`, no surface through the box, a
 plausible skeleton at the cluster's depth (the largest keypoint distance, scaled by the cluster's median depth, at most
 `max_person_extent_m`: rejects background far behind) and, for a person whose depth is expected (a
@@ -229,7 +236,7 @@ def _isolation(fraction_in: np.ndarray, uniform_fraction: np.ndarray) -> np.ndar
 
 
 def _surface_through(g: _Geometry, z: np.ndarray, depth: np.ndarray, config: ExtractionConfig) -> np.ndarray:
-    """(P, C) bool: at cluster j's depth, the surface seen in person k's bbox goes on past both its sides."""
+    """(P, C) bool: at cluster j's depth, the surface seen in person k's bbox goes on past its sides."""
     surface = np.zeros(depth.shape, dtype=bool)
     for k in range(len(depth)):
         hypotheses = np.flatnonzero(np.isfinite(depth[k]))
@@ -237,8 +244,12 @@ def _surface_through(g: _Geometry, z: np.ndarray, depth: np.ndarray, config: Ext
             continue
         at_depth = np.abs(z[None, :] - depth[k, hypotheses, None]) <= config.depth_tolerance_m  # (H, M)
         inside = (at_depth & g.box[k]).sum(axis=1)
-        beside = np.minimum((at_depth & g.left[k]).sum(axis=1), (at_depth & g.right[k]).sum(axis=1))
-        surface[k, hypotheses] = beside >= np.maximum(config.surface_ratio * inside, config.surface_min_points)
+        left, right = (at_depth & g.left[k]).sum(axis=1), (at_depth & g.right[k]).sum(axis=1)
+        both = np.minimum(left, right) >= np.maximum(config.surface_ratio * inside, config.surface_min_points)
+        one = np.maximum(left, right) >= np.maximum(
+            config.surface_one_side_ratio * inside, config.surface_min_points
+        )
+        surface[k, hypotheses] = both | one
     return surface
 
 
@@ -255,7 +266,7 @@ def _main_clusters(
     those whose core shows more of something in front of it; mask_cover: (P, C)
     fraction of the bbox the mask covers at the cluster's depth; box_fraction: (P,) the bbox's share
     of bbox + context; depth: (P, C) median depth of the mask points; extent: (P,) skeleton size;
-    surface: (P, C) a surface at the cluster's depth goes on past both sides of the bbox;
+    surface: (P, C) a surface at the cluster's depth goes on past the sides of the bbox;
     expected_depth: optional (P, 2) expected depth and tolerance per person (NaN: none).
     """
     in_box, in_mask, exclusive = counts["in_box"], counts["in_mask"], counts["exclusive"]

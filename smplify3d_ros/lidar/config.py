@@ -48,6 +48,7 @@ class ExtractionConfig:
     min_isolation: float  # how much a body stands out from a surface (0: like a wall, 1: fully)
     surface_side_width: float  # bands beside the bbox, in bbox widths, where a surface would go on
     surface_ratio: float  # a cluster is a surface if both bands hold this fraction of the bbox's points at its depth
+    surface_one_side_ratio: float  # ... or one band this many times them
     surface_min_points: int  # ... and at least this many each
     shared_weight: float  # weight of mask points another skeleton also covers, in the cluster score
     share_min_exclusive: float  # fraction of exclusive mask points for two people to share a cluster
@@ -95,6 +96,7 @@ class ExtractionConfig:
         require(0.0 <= self.min_isolation <= 1.0, "min_isolation must be in [0, 1]")
         require(self.surface_side_width > 0.0, "surface_side_width must be > 0")
         require(self.surface_ratio > 0.0, "surface_ratio must be > 0")
+        require(self.surface_one_side_ratio > 0.0, "surface_one_side_ratio must be > 0")
         require(self.surface_min_points >= 1, "surface_min_points must be >= 1")
         require(0.0 <= self.shared_weight <= 1.0, "shared_weight must be in [0, 1]")
         require(0.0 <= self.share_min_exclusive <= 1.0, "share_min_exclusive must be in [0, 1]")

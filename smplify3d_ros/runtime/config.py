@@ -294,6 +294,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "lidar.mask_radius_m": (0, _INF), "lidar.max_person_extent_m": (0, _INF),
     "lidar.mask_area_samples": (2, _INF), "lidar.context_pad": (0, _INF), "lidar.min_isolation": (0, 1),
     "lidar.surface_side_width": (0, _INF), "lidar.surface_ratio": (0, _INF), "lidar.surface_min_points": (1, _INF),
+    "lidar.surface_one_side_ratio": (0, _INF),
     "lidar.shared_weight": (0, 1), "lidar.share_min_exclusive": (0, 1), "lidar.core_radius_m": (0, _INF),
     "lidar.refute_min_score": (0, 1), "lidar.refute_ratio": (1, _INF),
     "lidar.hidden_weight": (0, _INF), "lidar.depth_tolerance_m": (0, _INF),
