@@ -14,7 +14,10 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
   - covered parts: parts on which j has mask points, counting 1 with an exclusive point and
     `shared_weight` with only points that another skeleton also covers. Counting parts, not points,
     makes the score independent of range: a box in front of the legs is closer, hence denser, than
-    the person behind it, but it covers only the legs; the person covers torso, arms and head.
+    the person behind it, but it covers only the legs; the person covers torso, arms and head. A part
+    counts fully when its keypoints score at least `coverage_full_score`, in proportion below: a
+    detector reports the joints an occluder hides, with low confidence, and there the occluder is what
+    fills the mask.
   - refuted parts: a body hides what is behind it, so the skeleton's core (within `core_radius_m`)
     shows the body itself or an occluder in front of it, never the background. A part refutes j when
     its core holds more points of clusters farther than j (by `depth_tolerance_m`) than of j: the
@@ -235,6 +238,17 @@ def _isolation(fraction_in: np.ndarray, uniform_fraction: np.ndarray) -> np.ndar
     return (fraction_in - uniform_fraction) / np.maximum(1.0 - uniform_fraction, 1e-6)
 
 
+def _part_weights(skeletons: list[Skeleton | None], n_parts: int, config: ExtractionConfig) -> np.ndarray:
+    """(P, parts) what covering each body part is worth: 1 for a part whose best segment scores at
+    least `coverage_full_score`, in proportion below (a detector reports the joints an occluder hides
+    with low confidence, and the occluder is what fills the mask there)."""
+    weights = np.zeros((len(skeletons), n_parts))
+    for k, skeleton in enumerate(skeletons):
+        if skeleton is not None:
+            np.maximum.at(weights[k], skeleton.parts, np.minimum(skeleton.scores / config.coverage_full_score, 1.0))
+    return weights
+
+
 def _surface_through(g: _Geometry, z: np.ndarray, depth: np.ndarray, config: ExtractionConfig) -> np.ndarray:
     """(P, C) bool: at cluster j's depth, the surface seen in person k's bbox goes on past its sides."""
     surface = np.zeros(depth.shape, dtype=bool)
@@ -418,7 +432,10 @@ def _score_clusters(
         return np.bincount(ids, minlength=size * n_parts).reshape(n_people, n_clusters, n_parts) > 0
 
     parts_excl, parts_any = parts_with(exclusive), parts_with(mask)
-    coverage = parts_excl.sum(axis=2) + config.shared_weight * (parts_any & ~parts_excl).sum(axis=2)
+    weight = _part_weights(skeletons, n_parts, config)[:, None, :]  # (P, 1, parts)
+    coverage = (parts_excl * weight).sum(axis=2) + config.shared_weight * (
+        (parts_any & ~parts_excl) * weight
+    ).sum(axis=2)
     depth = _grouped_median(group[mask], np.broadcast_to(z, mask.shape)[mask], size).reshape(
         n_people, n_clusters
     )

@@ -50,6 +50,7 @@ class ExtractionConfig:
     surface_ratio: float  # a cluster is a surface if both bands hold this fraction of the bbox's points at its depth
     surface_one_side_ratio: float  # ... or one band this many times them
     surface_min_points: int  # ... and at least this many each
+    coverage_full_score: float  # a covered part counts 1 when its keypoints score this, in proportion below
     shared_weight: float  # weight of mask points another skeleton also covers, in the cluster score
     share_min_exclusive: float  # fraction of exclusive mask points for two people to share a cluster
     core_radius_m: float  # points this close to a skeleton are its body or an occluder, not background
@@ -98,6 +99,7 @@ class ExtractionConfig:
         require(self.surface_ratio > 0.0, "surface_ratio must be > 0")
         require(self.surface_one_side_ratio > 0.0, "surface_one_side_ratio must be > 0")
         require(self.surface_min_points >= 1, "surface_min_points must be >= 1")
+        require(0.0 < self.coverage_full_score <= 1.0, "coverage_full_score must be in (0, 1]")
         require(0.0 <= self.shared_weight <= 1.0, "shared_weight must be in [0, 1]")
         require(0.0 <= self.share_min_exclusive <= 1.0, "share_min_exclusive must be in [0, 1]")
         for name in ("refuting_parts", "hidden_parts"):
