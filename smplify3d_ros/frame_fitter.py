@@ -70,22 +70,37 @@ def _box_area(uv: np.ndarray) -> float:
     return float(span[0] * span[1])
 
 
+def _undistorted(keypoints: np.ndarray, camera: CameraModel) -> np.ndarray:
+    out = np.asarray(keypoints, dtype=np.float64).copy().reshape(-1, 17, 3)
+    if len(out) and camera.has_distortion:
+        out[..., :2] = undistort_pixels(out[..., :2].reshape(-1, 2), camera).reshape(-1, 17, 2)
+    return out
+
+
 def undistorted_keypoints(frame: Frame) -> np.ndarray:
     """(P, 17, 3) the frame's keypoints as an ideal pinhole camera of the same K would see them."""
-    out = frame.keypoints.astype(np.float64).copy().reshape(-1, 17, 3)
-    if len(out) and frame.camera.has_distortion:
-        out[..., :2] = undistort_pixels(out[..., :2].reshape(-1, 2), frame.camera).reshape(-1, 17, 2)
-    return out
+    return _undistorted(frame.keypoints, frame.camera)
 
 
 def extract_frame_people(frame: Frame, config: ExtractionConfig,
                          expected_depth: np.ndarray | None = None) -> tuple[np.ndarray, ExtractionResult]:
     """The frame's undistorted keypoints and each person's points cut out of its scan (camera frame);
-    `expected_depth`: optional (P, 2) depth and tolerance where each person should be (a track's)."""
+    `expected_depth`: optional (P, 2) depth and tolerance where each person should be (a track's). The
+    frame's `bystanders` take part in the extraction (their points are theirs) but are not returned."""
     undistorted = undistorted_keypoints(frame)
     points_cam = transform_points(frame.points_lidar, frame.T_cam_lidar).astype(np.float32)
     pinhole = CameraModel(frame.camera.K, frame.camera.width, frame.camera.height)
-    return undistorted, extract_people(points_cam, undistorted, pinhole, config, expected_depth)
+    bystanders = _undistorted(frame.bystanders if frame.bystanders is not None else np.zeros((0, 17, 3)),
+                              frame.camera)
+    if len(bystanders) == 0:
+        return undistorted, extract_people(points_cam, undistorted, pinhole, config, expected_depth)
+    n = len(undistorted)
+    if expected_depth is not None:
+        expected_depth = np.concatenate([np.asarray(expected_depth, np.float64).reshape(n, 2),
+                                         np.full((len(bystanders), 2), np.nan)])
+    result = extract_people(points_cam, np.concatenate([undistorted, bystanders]), pinhole, config, expected_depth)
+    labels = np.where(result.labels >= n, -1, result.labels).astype(np.int32)
+    return undistorted, replace(result, people=result.people[:n], labels=labels)
 
 
 class FrameFitter:
@@ -124,10 +139,12 @@ class FrameFitter:
         for i in np.flatnonzero(~keep):
             dropped[PERSON_OUT_OF_IMAGE if good_before[i] >= sel.min_keypoints else PERSON_FEW_KEYPOINTS] += 1
         index = np.flatnonzero(keep)
+        bystanders = None
         if len(index) > sel.max_people:
             area = np.array([_box_area(kp[i][good[i], :2]) for i in index])
             dropped[PERSON_MAX_PEOPLE] += len(index) - sel.max_people
-            index = np.sort(index[np.argsort(-area, kind="stable")][: sel.max_people])
+            by_area = index[np.argsort(-area, kind="stable")]
+            index, bystanders = np.sort(by_area[: sel.max_people]), kp[np.sort(by_area[sel.max_people:])]
         kp, ids = kp[index], frame.person_ids[index].astype(np.int64)
         anonymous = np.flatnonzero(ids < 0) if self.tracker is None else []
         if len(anonymous):
@@ -136,7 +153,7 @@ class FrameFitter:
             centre_u = [np.mean(kp[i][good[index[i]], 0]) for i in anonymous]
             for i in anonymous[np.argsort(centre_u, kind="stable")]:
                 ids[i] = next(free)
-        return replace(frame, keypoints=kp, person_ids=ids), dropped
+        return replace(frame, keypoints=kp, person_ids=ids, bystanders=bystanders), dropped
 
     def observations(self, frame: Frame) -> tuple[list[PersonObservation], np.ndarray]:
         """Undistort the keypoints, move the scan into the camera frame and cut out each person's points.

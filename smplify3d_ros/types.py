@@ -62,6 +62,9 @@ class Frame:
     image: np.ndarray | None = None  # (H, W, 3) uint8 RGB, optional
     frame_id: str = "camera"  # the camera optical frame's name
     init_bodies: dict[int, BodyParams] = field(default_factory=dict)  # external estimates by person id
+    # (Q, 17, 3) keypoints (as detected) of people seen but not fitted (beyond `people.max_people`): the
+    # point extraction still gives them their own points, so that their bodies are not taken for a wall
+    bystanders: np.ndarray | None = None
 
 
 @dataclass

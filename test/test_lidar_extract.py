@@ -517,3 +517,32 @@ def test_an_occluder_over_the_joints_seen_with_low_confidence_is_not_the_person(
         taken = result.people[k].indices
         found = len(taken) > 0 and np.isin(taken, own).mean() > 0.9
         assert found == keeps_own, (len(taken), int(np.isin(taken, own).sum()), len(own))
+
+
+def test_people_left_out_by_max_people_still_own_their_points():
+    """A simulated crowd (outdoor_crowd tuning seed 36, ten people, `people.max_people` 6): person 9 stands
+    10.3 m out behind someone the frame path leaves out (smaller box). Extracted without that bystander,
+    person 9 took the bystander's points 2 m in front; with the frame's `bystanders` in the extraction,
+    each keeps their own."""
+    import dataclasses
+
+    from smplify3d_ros.config import load_config
+    from smplify3d_ros.frame_fitter import FrameFitter, extract_frame_people
+    from smplify3d_ros.sim.config import load_sim_config
+    from smplify3d_ros.sim.world import simulate_scenario
+
+    config = load_config()
+    sim = simulate_scenario(36, load_sim_config(), "outdoor_crowd", sensor="livox", n_people=10,
+                            distance_range=(6.0, 15.0))
+    frame, dropped = FrameFitter(config, fitter=object()).select_people(sim.frame)  # selection needs no fitter
+    assert dropped["max_people"] == 4 and frame.bystanders is not None and len(frame.bystanders) == 4
+    k = list(frame.person_ids).index(9)
+    own = np.flatnonzero(sim.point_labels == 9)
+    depth = float(np.asarray(sim.people[9].keypoints3d)[[KP["left_hip"], KP["right_hip"]], 2].mean())
+    for f, keeps_own in ((dataclasses.replace(frame, bystanders=None), False), (frame, True)):
+        _, result = extract_frame_people(f, config.lidar)
+        points = result.people[k].points
+        assert len(points) > 0
+        at_depth = abs(float(np.median(points[:, 2])) + 0.1 - depth) < 0.5
+        assert at_depth == keeps_own, (len(points), float(np.median(points[:, 2])), depth, len(own))
+        assert result.labels.max() < len(frame.keypoints)  # bystanders' points are nobody's in the result
