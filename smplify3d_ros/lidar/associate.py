@@ -256,9 +256,11 @@ def _surface_through(g: _Geometry, z: np.ndarray, depth: np.ndarray, config: Ext
         hypotheses = np.flatnonzero(np.isfinite(depth[k]))
         if len(hypotheses) == 0:
             continue
-        at_depth = np.abs(z[None, :] - depth[k, hypotheses, None]) <= config.depth_tolerance_m  # (H, M)
-        inside = (at_depth & g.box[k]).sum(axis=1)
-        left, right = (at_depth & g.left[k]).sum(axis=1), (at_depth & g.right[k]).sum(axis=1)
+        levels = depth[k, hypotheses, None]
+        inside, left, right = (
+            (np.abs(z[region][None, :] - levels) <= config.depth_tolerance_m).sum(axis=1)  # (H,) at each depth
+            for region in (g.box[k], g.left[k], g.right[k])
+        )
         both = np.minimum(left, right) >= np.maximum(config.surface_ratio * inside, config.surface_min_points)
         one = np.maximum(left, right) >= np.maximum(
             config.surface_one_side_ratio * inside, config.surface_min_points
