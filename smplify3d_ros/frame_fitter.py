@@ -92,10 +92,8 @@ def extract_frame_people(frame: Frame, config: ExtractionConfig,
     pinhole = CameraModel(frame.camera.K, frame.camera.width, frame.camera.height)
     bystanders = _undistorted(frame.bystanders if frame.bystanders is not None else np.zeros((0, 17, 3)),
                               frame.camera)
-    if len(bystanders) == 0:
-        return undistorted, extract_people(points_cam, undistorted, pinhole, config, expected_depth)
     n = len(undistorted)
-    if expected_depth is not None:
+    if expected_depth is not None:  # bystanders: expected anywhere
         expected_depth = np.concatenate([np.asarray(expected_depth, np.float64).reshape(n, 2),
                                          np.full((len(bystanders), 2), np.nan)])
     result = extract_people(points_cam, np.concatenate([undistorted, bystanders]), pinhole, config, expected_depth)
