@@ -219,7 +219,7 @@ class FrameFitter:
             warm_results = self.warm_fitter.fit(warm_people, K, observed.lidar_origin, warm_options)
             latency["warm_fit_per_person"] = (time.perf_counter() - t) / len(warm_people)
             for i, fit in zip(warm, warm_results, strict=True):
-                if not self._lost(fit, people[i]):
+                if not self._lost(fit, people[i], K):
                     warm_fits[i] = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
         refresh = self._refreshes_due(list(warm_fits), people)
         cold = [i for i in range(len(people)) if i not in warm_fits or i in refresh]
@@ -265,10 +265,15 @@ class FrameFitter:
         return (track is not None and track.last_fit is not None and FLAG_IMAGE_ONLY in track.last_fit.flags
                 and len(obs.points) >= self.config.fitting.min_points)
 
-    def _lost(self, fit: BodyFit, obs: PersonObservation) -> bool:
-        """A warm fit that does not explain its person any more: the cold start takes over."""
+    def _lost(self, fit: BodyFit, obs: PersonObservation, K: np.ndarray) -> bool:
+        """A warm fit that does not explain its person any more: the cold start takes over. The person's
+        size in the image is the taller of their keypoint box and the fit's joints projected: a person
+        half hidden behind someone has a box of their visible half, and keypoints as noisy as a whole
+        person's (the hidden ones noisier)."""
         cfg = self.config.tracking
-        height = max(float(obs.bbox[3] - obs.bbox[1]), 1.0)
+        joints = np.asarray(fit.keypoints3d, np.float64) @ np.asarray(K, np.float64).T
+        rows = joints[joints[:, 2] > 0.1, 1] / joints[joints[:, 2] > 0.1, 2]  # image rows of the joints in front
+        height = max(float(obs.bbox[3] - obs.bbox[1]), float(np.ptp(rows)) if rows.size else 0.0, 1.0)
         chamfer = fit.quality.chamfer_m
         return (FLAG_DIVERGED in fit.flags or not fit.quality.reprojection_px <= cfg.lost_reprojection * height
                 or (np.isfinite(chamfer) and chamfer > cfg.lost_chamfer_m))

@@ -253,3 +253,57 @@ def test_a_warm_fit_that_lost_its_person_falls_back_to_the_cold_start():
     assert len(warm.calls) == 3 and len(cold.calls) == 3  # frame 0 new; frames 2 and 3 lost
     assert flags == [[], ["warm_start"], [], []]
     assert path.tracker.stats.fits["lost"] == 2 and path.tracker.stats.fits["warm"] == 1
+
+
+def test_a_person_seen_without_points_keeps_the_depth_their_points_had():
+    """Someone 8 m out, behind a person at 4 m, is detected without points for a frame and then not at
+    all; the person in front, whose box now covers where theirs was, keeps their own track: the hidden
+    person's track still has the depth the LiDAR measured, 4 m behind."""
+    tracker = Tracker(config())
+    front = [observation(-1, 0.1 * k, z=4.0) for k in range(3)]
+    behind = dataclasses.replace(observation(-1, 0.2, z=8.0), bbox=front[2].bbox.copy())
+    ids = [f.person_id for f in step(tracker, 0, [front[0], observation(-1, 0.2, z=8.0)])]
+    people = tracker.assign([front[1], dataclasses.replace(behind, points=np.zeros((0, 3), np.float32))], NS)
+    tracker.update([fit_at(people[0].person_id, 0.1, 4.0), fit_at(people[1].person_id, 0.2, 8.0)], people, NS)
+    assert [p.person_id for p in people] == ids
+    assert step(tracker, 2, [front[2]])[0].person_id == ids[0]
+    predicted = tracker.track(ids[1]).predicted_surface(2 * NS)
+    assert predicted is not None and abs(predicted[2] - 8.0) < 0.3
+
+
+def test_an_image_only_depth_barely_moves_the_velocity():
+    """A fit from the image alone measures its depth to decimetres: a 25 cm jump along the camera ray
+    from one frame to the next barely moves the velocity (when the LiDAR measured it, it moves it as
+    much as the same jump sideways does)."""
+    def after_jump(jump, depth_sigma):
+        f = MotionFilter(accel_sigma=2.0, position_sigma=0.05)
+        for _ in range(5):
+            f.update(np.array([0.0, 0.0, 8.0]), 0.1)
+        f.update(np.array([0.0, 0.0, 8.0]) + jump, 0.1, depth_sigma=depth_sigma)
+        return f.velocity
+
+    along = np.array([0.0, 0.0, 0.25])
+    assert abs(after_jump(along, 0.5)[2]) < 0.05
+    assert after_jump(along, None)[2] > 0.5
+    assert after_jump(np.array([0.25, 0.0, 0.0]), 0.5)[0] > 0.5
+
+
+def test_a_half_hidden_person_is_lost_by_their_size_in_the_image_not_their_box():
+    """The keypoint box of a person half hidden behind someone spans their visible half; their keypoints
+    are as noisy as a whole person's. The lost test measures reprojection against the taller of the box
+    and the fit's joints projected."""
+    from node_support import StubFitter
+
+    from smplify3d_ros.frame_fitter import FrameFitter
+
+    core = load_config()
+    path = FrameFitter(core, fitter=StubFitter(), tracker=Tracker(core.tracking), warm_fitter=StubFitter())
+    K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    standing = np.zeros((17, 3), np.float32)
+    standing[:, 1], standing[:, 2] = np.linspace(-0.9, 0.8, 17), 5.0  # 1.7 m tall at 5 m: 170 px
+    obs = dataclasses.replace(observation(2, 0.0), bbox=np.array([300.0, 240.0, 330.0, 280.0]))  # 40 px
+    fit = dataclasses.replace(fit_at(2, 0.0), keypoints3d=standing)
+    assert not path._lost(dataclasses.replace(fit, quality=dataclasses.replace(fit.quality, reprojection_px=5.0)),
+                          obs, K)
+    assert path._lost(dataclasses.replace(fit, quality=dataclasses.replace(fit.quality, reprojection_px=20.0)),
+                      obs, K)

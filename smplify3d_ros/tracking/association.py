@@ -1,9 +1,12 @@
 """Which track an anonymous detection continues: a gated assignment on position and box overlap.
 
 Cost of (track, detection): the horizontal distance (camera x-z plane) between where the track's LiDAR
-points are predicted and where the detection's are, plus `iou_weight` x (1 - overlap of their keypoint
-boxes); a pair farther apart than the gate (`gate_m` + `gate_speed_mps` x time unseen) cannot match.
-Without points on either side, the boxes alone decide, and they must overlap. The assignment minimising
+points are predicted (the last points its person had, moved by the track's velocity) and where the
+detection's are, plus `iou_weight` x (1 - overlap of their keypoint boxes); a pair farther apart than
+the gate (`gate_m` + `gate_speed_mps` x the age of the track's points) cannot match. Without points on
+either side, the boxes alone decide, and they must overlap. A track whose person had no points in its
+last frame still has a depth: a person behind someone in the image must not hand their track to the
+one in front, whose box overlaps theirs. The assignment minimising
 the total cost is found with the Hungarian method (scipy's `linear_sum_assignment`).
 """
 
@@ -35,14 +38,13 @@ def box_iou(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _cost(track: Track, obs: PersonObservation, stamp_ns: int, config: TrackingConfig) -> float:
-    dt = track.age_s(stamp_ns)
     overlap = box_iou(track.bbox, np.asarray(obs.bbox, np.float64))
     surface = np.median(obs.points, axis=0) if len(obs.points) else None
     predicted = track.predicted_surface(stamp_ns)
     if surface is None or predicted is None:
         return config.iou_weight * (1.0 - overlap) if overlap > 0 else _NO_MATCH
     distance = float(np.hypot(*(predicted - surface)[[0, 2]]))
-    if distance > config.gate_m + config.gate_speed_mps * dt:
+    if not np.isfinite(distance) or distance > config.gate_m + config.gate_speed_mps * track.surface_age_s(stamp_ns):
         return _NO_MATCH
     return distance + config.iou_weight * (1.0 - overlap)
 

@@ -19,6 +19,7 @@ class TrackingConfig:
     shape_rate: float  # after that, weight of each new frame's shape in the held shape (0: held)
     accel_sigma_mps2: float  # the constant-velocity filter's process noise: unmodelled acceleration
     position_sigma_m: float  # the filter's measurement noise: the fitted pelvis position
+    image_depth_sigma_m: float  # ... and of an image-only fit's depth (along the camera ray)
     pose_smoothing: float  # weight of a new fit's rotations in the output (1: none; the rest: the last output's)
     filter_position: bool  # the output's pelvis is the motion filter's estimate, not the fit's alone
     warm_start: bool  # fit tracked people from their predicted last fit with the short warm solve
@@ -27,7 +28,7 @@ class TrackingConfig:
     refresh_frames: int  # every n-th frame of a track: the cold start, the warm start one of its hypotheses (0: never)
     refresh_max_people: int  # people refreshed in one frame at most, the longest unrefreshed first (0: no limit)
     refresh_margin: float  # a refresh's cold fit replaces the warm fit when its final loss is below this fraction
-    lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of its box height) is lost
+    lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of the person's image height) is lost
     lost_chamfer_m: float  # ... or whose mesh is farther than this from its points
 
     def __post_init__(self) -> None:
@@ -41,7 +42,7 @@ class TrackingConfig:
         require(0.0 < self.refresh_margin <= 1.0, "refresh_margin must be in (0, 1]")
         require(0.0 < self.pose_smoothing <= 1.0, "pose_smoothing must be in (0, 1]")
         require(0.0 <= self.shape_rate <= 1.0, "shape_rate must be in [0, 1]")
-        require(self.accel_sigma_mps2 > 0 and self.position_sigma_m > 0,
-                "accel_sigma_mps2 and position_sigma_m must be > 0")
+        require(self.accel_sigma_mps2 > 0 and self.position_sigma_m > 0 and self.image_depth_sigma_m > 0,
+                "accel_sigma_mps2, position_sigma_m and image_depth_sigma_m must be > 0")
         require(self.lost_reprojection > 0 and self.lost_chamfer_m > 0,
                 "lost_reprojection and lost_chamfer_m must be > 0")

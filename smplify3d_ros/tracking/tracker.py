@@ -27,7 +27,7 @@ from smplify3d_ros.keypoints import HIP_INDICES
 from smplify3d_ros.tracking.association import associate, box_iou
 from smplify3d_ros.tracking.config import TrackingConfig
 from smplify3d_ros.tracking.motion import MotionFilter
-from smplify3d_ros.types import BodyFit, BodyParams, PersonObservation
+from smplify3d_ros.types import FLAG_IMAGE_ONLY, BodyFit, BodyParams, PersonObservation
 
 _NS = 1e-9
 PoseFunction = Callable[[list[BodyParams]], list[Any]]  # BodyModel.posed: params -> PosedBody geometry
@@ -62,7 +62,8 @@ class Track:
     last_stamp_ns: int
     motion: MotionFilter
     bbox: np.ndarray  # (4,) the last keypoint box, px
-    surface: np.ndarray | None  # (3,) the last points' median, camera frame
+    surface: np.ndarray | None  # (3,) the median of the last points the track's person had, camera frame
+    surface_stamp_ns: int  # when those points were measured (frames without points keep the last ones)
     last_fit: BodyFit | None = None  # the last fit as the fitter made it (the next warm start)
     last_output: BodyFit | None = None  # ... as it was output (smoothed)
     previous_output: BodyFit | None = None  # the output before that (the rotations' rate of change)
@@ -80,12 +81,18 @@ class Track:
     def age_s(self, stamp_ns: int) -> float:
         return (stamp_ns - self.last_stamp_ns) * _NS
 
+    def surface_age_s(self, stamp_ns: int) -> float:
+        """How long before `stamp_ns` the track's last points were measured."""
+        return (stamp_ns - self.surface_stamp_ns) * _NS
+
     def predicted_surface(self, stamp_ns: int) -> np.ndarray | None:
-        """(3,) where the last points' median will be at `stamp_ns` (moved by the filter's velocity), or
-        None when the last fit had no points."""
+        """(3,) where the last points' median will be at `stamp_ns` (moved by the filter's velocity since
+        they were measured), or None when the track's person never had points. The fitted positions of
+        frames without points (depth from the image alone) move only the velocity: the surface keeps the
+        depth the LiDAR measured."""
         if self.surface is None:
             return None
-        return self.surface + (self.motion.predicted(self.age_s(stamp_ns)) - self.motion.position)
+        return self.surface + max(self.surface_age_s(stamp_ns), 0.0) * self.motion.velocity
 
 
 @dataclass
@@ -184,7 +191,8 @@ class Tracker:
             return out
         for i, person_id in enumerate(np.asarray(person_ids).tolist()):
             track = self.tracks.get(int(person_id)) if person_id >= 0 else None
-            if track is None or not track.from_detector or track.surface is None or track.last_fit is None:
+            if track is None or not track.from_detector or track.surface is None or track.last_fit is None \
+                    or track.surface_stamp_ns != track.last_stamp_ns:
                 continue
             age = track.age_s(stamp_ns)
             if age > self.config.max_unseen_s:
@@ -212,14 +220,17 @@ class Tracker:
         for fit in fits:
             obs = by_id.get(fit.person_id)
             track = self._track_for(fit, obs, stamp_ns)
-            track.motion.update(pelvis(fit), track.age_s(stamp_ns))
+            track.motion.update(pelvis(fit), track.age_s(stamp_ns),
+                                self.config.image_depth_sigma_m if FLAG_IMAGE_ONLY in fit.flags else None)
             track.last_fit = fit
             if pose is not None and track.last_output is not None:
                 fit = self._smoothed(fit, track, pose)
             track.previous_output, track.last_output = track.last_output, fit
             track.last_stamp_ns, track.frames, track.missed_ns = stamp_ns, track.frames + 1, None
             if obs is not None:
-                track.bbox, track.surface = np.asarray(obs.bbox, np.float64), surface_point(obs)
+                track.bbox = np.asarray(obs.bbox, np.float64)
+                if len(obs.points):
+                    track.surface, track.surface_stamp_ns = surface_point(obs), stamp_ns
             self._fold_shape(track, fit)
             # a track's first fit has no velocity yet (the filter starts at rest, which would be a guess)
             out.append(replace(fit, velocity=track.motion.velocity if track.frames > 1 else None))
@@ -257,7 +268,7 @@ class Tracker:
                 track_id=fit.person_id, from_detector=fit.person_id not in self._own, last_stamp_ns=stamp_ns,
                 motion=MotionFilter(cfg.accel_sigma_mps2, cfg.position_sigma_m),
                 bbox=np.zeros(4) if obs is None else np.asarray(obs.bbox, np.float64),
-                surface=None if obs is None else surface_point(obs))
+                surface=None if obs is None else surface_point(obs), surface_stamp_ns=stamp_ns)
             self.stats.tracks_started += 1
         return track
 
