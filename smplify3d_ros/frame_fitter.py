@@ -222,10 +222,11 @@ class FrameFitter:
                 if not self._lost(fit, people[i], K):
                     warm_fits[i] = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
         refresh = self._refreshes_due(list(warm_fits), people)
-        cold = [i for i in range(len(people)) if i not in warm_fits or i in refresh]
         for i in refresh:
             track = tracker.track(people[i].person_id)
             track.last_refresh_frame = track.frames
+        settled = self._settled_refreshes(sorted(refresh), people, warm_start, K, observed.lidar_origin, options)
+        cold = [i for i in range(len(people)) if i not in warm_fits or (i in refresh and i not in settled)]
         fits = dict(warm_fits)
         if cold:
             cold_people = [replace(people[i], hypothesis=_as_hypothesis(warm_start[i])) if i in refresh
@@ -236,9 +237,22 @@ class FrameFitter:
         refreshed = sum(fits[i] is not warm_fits[i] for i in refresh)
         lost = len(warm) - len(warm_fits)
         tracker.stats.fits.update({"warm": len(warm_fits) - refreshed, "lost": lost, "refresh": len(refresh),
-                                   "refreshed": refreshed, "cold": len(cold) - len(refresh) - lost})
+                                   "refresh_settled": len(settled), "refreshed": refreshed,
+                                   "cold": len(cold) - (len(refresh) - len(settled)) - lost})
         pose = self.fitter.model.posed if isinstance(self.fitter, Fitter) else None  # stand-ins: unsmoothed
         return tracker.update([fits[i] for i in range(len(people))], people, stamp, pose)
+
+    def _settled_refreshes(self, refresh: list[int], people: list[PersonObservation],
+                           warm_start: dict[int, WarmStart | None], K: np.ndarray, lidar_origin: np.ndarray,
+                           options: FitOptions | None) -> set[int]:
+        """The refreshes that need no cold fit (with `tracking.refresh_compete_first`): those whose warm
+        start beats the built-in heading hypotheses in the initializer's joint refinement, from which the
+        cold fit would have gone on from the warm start, which the warm fit has refined already."""
+        compete = getattr(self.fitter, "given_hypothesis_wins", None)
+        if not refresh or not self.config.tracking.refresh_compete_first or compete is None:
+            return set()
+        trial = [replace(people[i], hypothesis=_as_hypothesis(warm_start[i])) for i in refresh]
+        return {i for i, won in zip(refresh, compete(trial, K, lidar_origin, options), strict=True) if won}
 
     def _better(self, cold: BodyFit, warm: BodyFit) -> bool:
         """A refresh's cold fit is kept over the warm fit only when its final loss is clearly lower."""

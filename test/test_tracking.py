@@ -307,3 +307,59 @@ def test_a_half_hidden_person_is_lost_by_their_size_in_the_image_not_their_box()
                           obs, K)
     assert path._lost(dataclasses.replace(fit, quality=dataclasses.replace(fit.quality, reprojection_px=20.0)),
                       obs, K)
+
+
+def test_a_refresh_fits_cold_only_when_a_builtin_hypothesis_beats_the_warm_start():
+    """With `refresh_compete_first`, a refresh first pits the warm start against the built-in heading
+    hypotheses; where the warm start wins, the cold fit (which would go on from it) is not run."""
+    from types import SimpleNamespace
+
+    from node_support import StubFitter
+
+    from smplify3d_ros.frame_fitter import FrameFits, FrameFitter
+
+    class Competes(StubFitter):
+        def __init__(self, verdicts):
+            super().__init__()
+            self.verdicts, self.competed = list(verdicts), []
+
+        def given_hypothesis_wins(self, people, K, origin=None, options=None):
+            self.competed.append(people)
+            return [self.verdicts.pop(0) for _ in people]
+
+    for verdicts, cold_calls in (([True, True], 1), ([False, True], 2)):
+        cold, warm = Competes(verdicts), StubFitter()
+        core = load_config(overrides={"tracking": {"refresh_frames": 3}})
+        path = FrameFitter(core, fitter=cold, tracker=Tracker(core.tracking), warm_fitter=warm)
+        for k in range(7):
+            frame = SimpleNamespace(stamp_ns=k * NS, camera=SimpleNamespace(K=np.eye(3)))
+            people = path.tracker.assign([observation(4, 0.1 * k)], frame.stamp_ns)
+            path.fit_observed(FrameFits(frame, people, [], np.zeros(3)))
+        assert len(cold.competed) == 2 and all(call[0].hypothesis is not None for call in cold.competed)
+        assert len(cold.calls) == cold_calls, verdicts  # frame 0 (new) and the refreshes the warm start lost
+        fits = path.tracker.stats.fits
+        assert fits["refresh"] == 2 and fits["refresh_settled"] == sum(verdicts) and fits["warm"] == 6
+
+
+def test_the_warm_start_competes_with_the_builtin_hypotheses_in_the_fitter():
+    """`Fitter.given_hypothesis_wins` on a real fit: a person's own fit as their hypothesis beats the
+    built-in hypotheses of their keypoints and points; a body turned round does not."""
+    from scipy.spatial.transform import Rotation
+
+    from smplify3d_ros.fitting.fitter import Fitter
+    from smplify3d_ros.frame_fitter import FrameFitter
+    from smplify3d_ros.sim.config import load_sim_config
+    from smplify3d_ros.sim.world import simulate_scene
+
+    core = load_config()
+    sim = simulate_scene(3, load_sim_config(), sensor="vlp16", n_people=1, distance_range=(4.0, 5.0))
+    fitter = Fitter(core.fitting)
+    obs = [o for o in FrameFitter(core, fitter=fitter).observe(sim.frame).observations if len(o.points) >= 15][0]
+    K = sim.frame.camera.K
+    fit = fitter.fit([obs], K)[0]
+    own = fit.params.copy()
+    own.transl = np.asarray(fit.keypoints3d, np.float64)[[11, 12]].mean(axis=0)  # hypotheses place the hips
+    turned = own.copy()
+    turned.root_orient = (Rotation.from_euler("y", np.pi) * Rotation.from_rotvec(own.root_orient)).as_rotvec()
+    wins = fitter.given_hypothesis_wins([dataclasses.replace(obs, hypothesis=h) for h in (own, turned)], K)
+    assert wins == [True, False]

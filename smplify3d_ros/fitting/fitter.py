@@ -247,24 +247,50 @@ class Fitter:
         init = self.config.init
         if not batch.builtin.any() or init.refine_iterations <= 0:
             return
-        rows = np.array([i for i in range(batch.size) for _ in batch.hypotheses[i]], dtype=np.int64)
-        trial = batch.take(rows)
-        trial.state = self._placed_state([h for i in range(batch.size) for h in batch.hypotheses[i]],
-                                         np.ones(len(rows), dtype=bool))
-        together = min(init.hypothesis_iterations, init.refine_iterations)  # 0: compared as they start
-        loss = self._refine(trial, together)
-        for i in np.flatnonzero(batch.builtin):
-            mine = np.flatnonzero(rows == i)
-            best = int(mine[int(torch.argmin(loss[torch.as_tensor(mine)]))])
+        trial, best = self._compete(batch)
+        for i, row in best.items():
             for name in PARAM_FIELDS:
                 with torch.no_grad():
-                    getattr(batch.state, name)[i] = getattr(trial.state, name)[best]
-        rest = init.refine_iterations - together
+                    getattr(batch.state, name)[i] = getattr(trial.state, name)[row]
+        rest = init.refine_iterations - min(init.hypothesis_iterations, init.refine_iterations)
         if rest > 0:
             chosen = batch.take(np.flatnonzero(batch.builtin))
             chosen.state = batch.state.take(torch.as_tensor(np.flatnonzero(batch.builtin), device=self.device))
             self._refine(chosen, rest)
             batch.state.copy_rows_from_subset(chosen.state, torch.as_tensor(np.flatnonzero(batch.builtin)))
+
+    def _compete(self, batch: Batch) -> tuple[Batch, dict[int, int]]:
+        """Every hypothesis of every built-in person refined together for `init.hypothesis_iterations`
+        (0: compared as they start): the trial batch and, per built-in person, its row of lowest loss."""
+        init = self.config.init
+        rows = np.array([i for i in range(batch.size) for _ in batch.hypotheses[i]], dtype=np.int64)
+        trial = batch.take(rows)
+        trial.state = self._placed_state([h for i in range(batch.size) for h in batch.hypotheses[i]],
+                                         np.ones(len(rows), dtype=bool))
+        loss = self._refine(trial, min(init.hypothesis_iterations, init.refine_iterations))
+        best = {}
+        for i in np.flatnonzero(batch.builtin):
+            mine = np.flatnonzero(rows == i)
+            best[int(i)] = int(mine[int(torch.argmin(loss[torch.as_tensor(mine)]))])
+        return trial, best
+
+    def given_hypothesis_wins(self, people: list[PersonObservation], K: np.ndarray,
+                              lidar_origin: np.ndarray | None = None,
+                              options: FitOptions | None = None) -> list[bool]:
+        """Per person: whether their own `hypothesis` (a tracked person's warm start) has the lowest loss
+        among their hypotheses after the built-in heading hypotheses' joint refinement, the comparison by
+        which `fit` picks its start; False for people without one. Costs the initializer and that
+        refinement, a third of a cold fit."""
+        if not people:
+            return []
+        batch = self._start(people, K, lidar_origin, options or FitOptions())
+        self._initialize(batch)
+        if not batch.builtin.any() or self.config.init.refine_iterations <= 0:
+            return [False] * len(people)
+        trial, best = self._compete(batch)
+        offsets = np.cumsum([0] + [len(h) for h in batch.hypotheses])
+        return [i in best and p.hypothesis is not None and p.hypothesis.model == self.model.name
+                and best[i] == offsets[i + 1] - 1 for i, p in enumerate(batch.people)]
 
     def _refine(self, trial: Batch, iterations: int) -> torch.Tensor:
         """`iterations` of the built-in init's refinement of `trial`'s state, in place; (B,) final losses

@@ -28,6 +28,7 @@ class TrackingConfig:
     refresh_frames: int  # every n-th frame of a track: the cold start, the warm start one of its hypotheses (0: never)
     refresh_max_people: int  # people refreshed in one frame at most, the longest unrefreshed first (0: no limit)
     refresh_margin: float  # a refresh's cold fit replaces the warm fit when its final loss is below this fraction
+    refresh_compete_first: bool  # a refresh fits cold only when a built-in hypothesis beats the warm start first
     lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of the person's image height) is lost
     lost_chamfer_m: float  # ... or whose mesh is farther than this from its points
 
