@@ -310,7 +310,7 @@ def test_a_half_hidden_person_is_lost_by_their_size_in_the_image_not_their_box()
 
 
 def test_a_refresh_fits_cold_only_when_a_builtin_hypothesis_beats_the_warm_start():
-    """With `refresh_compete_first`, a refresh first pits the warm start against the built-in heading
+    """With `refresh_compete_first` (off by default), a refresh first pits the warm start against the built-in heading
     hypotheses; where the warm start wins, the cold fit (which would go on from it) is not run."""
     from types import SimpleNamespace
 
@@ -329,7 +329,7 @@ def test_a_refresh_fits_cold_only_when_a_builtin_hypothesis_beats_the_warm_start
 
     for verdicts, cold_calls in (([True, True], 1), ([False, True], 2)):
         cold, warm = Competes(verdicts), StubFitter()
-        core = load_config(overrides={"tracking": {"refresh_frames": 3}})
+        core = load_config(overrides={"tracking": {"refresh_frames": 3, "refresh_compete_first": True}})
         path = FrameFitter(core, fitter=cold, tracker=Tracker(core.tracking), warm_fitter=warm)
         for k in range(7):
             frame = SimpleNamespace(stamp_ns=k * NS, camera=SimpleNamespace(K=np.eye(3)))
