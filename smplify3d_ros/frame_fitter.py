@@ -246,8 +246,8 @@ class FrameFitter:
                            warm_start: dict[int, WarmStart | None], K: np.ndarray, lidar_origin: np.ndarray,
                            options: FitOptions | None) -> set[int]:
         """The refreshes that need no cold fit (with `tracking.refresh_compete_first`): those whose warm
-        start beats the built-in heading hypotheses in the initializer's joint refinement, from which the
-        cold fit would have gone on from the warm start, which the warm fit has refined already."""
+        start beats the built-in heading hypotheses in the initializer's joint refinement. Their cold fit
+        would have gone on from the warm start, which the warm fit has refined already."""
         compete = getattr(self.fitter, "given_hypothesis_wins", None)
         if not refresh or not self.config.tracking.refresh_compete_first or compete is None:
             return set()
@@ -286,7 +286,8 @@ class FrameFitter:
         person's (the hidden ones noisier)."""
         cfg = self.config.tracking
         joints = np.asarray(fit.keypoints3d, np.float64) @ np.asarray(K, np.float64).T
-        rows = joints[joints[:, 2] > 0.1, 1] / joints[joints[:, 2] > 0.1, 2]  # image rows of the joints in front
+        front = joints[joints[:, 2] > 0.1]
+        rows = front[:, 1] / front[:, 2]  # image rows of the joints in front of the camera
         height = max(float(obs.bbox[3] - obs.bbox[1]), float(np.ptp(rows)) if rows.size else 0.0, 1.0)
         chamfer = fit.quality.chamfer_m
         return (FLAG_DIVERGED in fit.flags or not fit.quality.reprojection_px <= cfg.lost_reprojection * height
