@@ -212,8 +212,8 @@ class FrameFitter:
         warm = [i for i, start in warm_start.items() if start is not None]
         warm_fits: dict[int, BodyFit] = {}
         if warm:
-            warm_people = [replace(people[i], init=warm_start[i].params, init_vertices=warm_start[i].vertices)
-                           for i in warm]
+            warm_people = [replace(people[i], init=warm_start[i].params, init_vertices=warm_start[i].vertices,
+                                   predicted_pelvis=warm_start[i].pelvis) for i in warm]
             warm_options = replace(options or FitOptions(), use_icp=self.config.tracking.warm_icp)
             t = time.perf_counter()
             warm_results = self.warm_fitter.fit(warm_people, K, observed.lidar_origin, warm_options)
@@ -229,8 +229,7 @@ class FrameFitter:
         cold = [i for i in range(len(people)) if i not in warm_fits or (i in refresh and i not in settled)]
         fits = dict(warm_fits)
         if cold:
-            cold_people = [replace(people[i], hypothesis=_as_hypothesis(warm_start[i])) if i in refresh
-                           else people[i] for i in cold]
+            cold_people = [self._cold_start(people[i], warm_start.get(i), i in refresh) for i in cold]
             for i, fit in zip(cold, self.fitter.fit(cold_people, K, observed.lidar_origin, options), strict=True):
                 if i not in warm_fits or self._better(fit, warm_fits[i]):
                     fits[i] = fit
@@ -241,6 +240,16 @@ class FrameFitter:
                                    "cold": len(cold) - (len(refresh) - len(settled)) - lost})
         pose = self.fitter.model.posed if isinstance(self.fitter, Fitter) else None  # stand-ins: unsmoothed
         return tracker.update([fits[i] for i in range(len(people))], people, stamp, pose)
+
+    @staticmethod
+    def _cold_start(person: PersonObservation, warm_start: WarmStart | None, refresh: bool) -> PersonObservation:
+        """A tracked person's cold fit knows where their track expects them (the depth of a start from
+        the image alone: a half-hidden person's size in the image put one 2.8 m too deep on
+        bags/people_anonymous); a refresh also weighs the warm start among the built-in hypotheses."""
+        if warm_start is None:
+            return person
+        return replace(person, predicted_pelvis=warm_start.pelvis,
+                       hypothesis=_as_hypothesis(warm_start) if refresh else person.hypothesis)
 
     def _settled_refreshes(self, refresh: list[int], people: list[PersonObservation],
                            warm_start: dict[int, WarmStart | None], K: np.ndarray, lidar_origin: np.ndarray,

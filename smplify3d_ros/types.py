@@ -85,6 +85,10 @@ class PersonObservation:
     # one more start that the built-in initializer weighs against its own heading hypotheses by the same
     # objective (a track's last fit, moved to the new stamp); its `transl` is the hip midpoint, as theirs
     hypothesis: BodyParams | None = None
+    # (3,) float64 where a tracker predicts this person's hip midpoint now (camera frame, m), None: no
+    # prediction. A start placed there (`init`: a warm start) is held there by the profile's
+    # `weights.motion`; a built-in start without points for the depth takes the depth from it
+    predicted_pelvis: np.ndarray | None = None
 
 
 @dataclass

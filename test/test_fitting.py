@@ -1,9 +1,12 @@
 """The fitting engine end to end on synthetic people, and its fallback and divergence paths."""
 
+import dataclasses
+
 import numpy as np
 
 from smplify3d_ros.config import load_config
 from smplify3d_ros.eval.synthetic import default_intrinsics, make_person, perturb
+from smplify3d_ros.fitting import init as initializer
 from smplify3d_ros.fitting.fitter import FitOptions, Fitter
 from smplify3d_ros.types import FLAG_DIVERGED, FLAG_EXTERNAL_INIT, FLAG_IMAGE_ONLY, FLAG_LIDAR_MISMATCH
 
@@ -203,3 +206,30 @@ def test_a_given_hypothesis_competes_with_the_builtin_headings(anny_model):
     without = fitter.fit([dataclasses.replace(obs, hypothesis=None)], K, options=FitOptions(optimize=False))[0]
     assert _mpjpe_mm(with_it, sp) < 40.0 and _mpjpe_mm(with_it, sp) < _mpjpe_mm(without, sp), (
         _mpjpe_mm(with_it, sp), _mpjpe_mm(without, sp))
+
+
+def test_a_tracked_person_fitted_cold_from_the_image_starts_at_their_tracks_depth(anny_model):
+    """Without points, the built-in start takes its depth from the image's size cues, which a half-hidden
+    person defeats (their visible half looks like someone farther away); a tracked person's prediction
+    gives it instead. Points, when there are any, still decide."""
+    cfg = load_config()
+    fitter = Fitter(cfg.fitting, anny_model)
+    K = default_intrinsics()
+    sp = make_person(anny_model, np.random.default_rng(0), K, distance=8.0, yaw=0.4, n_points=0,
+                     point_noise=0.02, keypoint_noise_px=2.0)
+    obs = dataclasses.replace(sp.observation, init=None)
+    hidden = obs.keypoints.copy()
+    hidden[11:, 2] = 0.0  # the legs hidden behind someone: the torso-only size cues put the person farther
+    obs = dataclasses.replace(obs, keypoints=hidden)
+    true_depth = float(sp.truth.transl[2])
+    predicted = np.array([0.0, 0.0, true_depth + 0.1])
+    start = initializer.builtin_hypotheses(dataclasses.replace(obs, predicted_pelvis=predicted), K,
+                                           cfg.fitting.init, False, False)
+    assert all(abs(pelvis[2] - (true_depth + 0.1)) < 1e-9 for _, pelvis in start)
+    fit = fitter.fit([dataclasses.replace(obs, predicted_pelvis=predicted)], K)[0]
+    assert FLAG_IMAGE_ONLY in fit.flags and abs(fit.params.transl[2] - true_depth) < 0.3
+    assert abs(fitter.fit([obs], K)[0].params.transl[2] - true_depth) > 0.8  # by its size in the image
+    with_points = dataclasses.replace(obs, points=np.full((10, 3), [0.0, 0.0, 5.0], np.float32),
+                                      predicted_pelvis=predicted)
+    depth = initializer.estimate_depth(with_points, K, cfg.fitting.init, True)
+    assert abs(depth - 5.0) < 0.5

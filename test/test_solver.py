@@ -148,3 +148,43 @@ def test_shape_stays_inside_its_range_under_any_step(anny_model):
     shape = state.body_args(anny_model)[0]
     moved = solver.apply_step(state, step, layout).body_args(anny_model)[0]
     assert ((moved >= 0) & (moved <= 1)).all() and (moved > shape).all()
+
+
+def test_the_motion_hold_keeps_a_tracked_translation_near_its_prediction(anny_model):
+    """A warm start's translation is where the track predicted the person; `weights.motion` holds the
+    fit there against what the data cannot tell apart, in both solvers, and leaves people without a
+    prediction (NaN row) free."""
+    fitter, problem, start, _ = _problem_and_start(anny_model)
+    spec = StageSpec("image", ("transl",), 10, None, 50.0, 0.0, priors=False)
+    predicted = start.transl + torch.tensor([[0.0, 0.0, 0.4]], dtype=start.transl.dtype)
+
+    def fitted(weight: float, prediction: torch.Tensor | None, optimizer: str = "lm") -> torch.Tensor:
+        profile = fitter.config.optimizer
+        profile = dataclasses.replace(profile, optimizer=optimizer, early_stop_rel_tol=0.0, lr=0.05,
+                                      weights=dataclasses.replace(profile.weights, motion=weight))
+        state = start.clone()
+        run_stage(anny_model, state, dataclasses.replace(problem, predicted_transl=prediction), spec, profile,
+                  1000.0, torch.zeros(1, dtype=torch.bool))
+        return state.transl.detach()[0]
+
+    free = fitted(0.0, predicted)
+    held = fitted(3000.0, predicted)
+    assert (free - predicted[0]).norm() > 0.2  # the image puts the person elsewhere
+    assert (held - predicted[0]).norm() < 0.02
+    assert (fitted(3000.0, predicted, "adam") - predicted[0]).norm() < (free - predicted[0]).norm() - 0.05
+    assert torch.allclose(fitted(3000.0, torch.full_like(predicted, float("nan"))), free)
+    # the LM's linearization is the stage loss's term: Jᵀr is half its gradient in the translation
+    profile = dataclasses.replace(fitter.config.optimizer,
+                                  weights=dataclasses.replace(fitter.config.optimizer.weights, motion=3000.0))
+    held_problem = dataclasses.replace(problem, predicted_transl=predicted)
+    layout = solver.Layout.of(anny_model, spec.params, "cpu")
+    acc = solver.Residuals(1, layout.size, "cpu")
+    solver.motion_hold_block(start, held_problem, spec, profile, layout, acc)
+    state = start.clone()
+    state.transl.requires_grad_(True)
+    term = stage_loss(anny_model, state, held_problem, spec, profile) - stage_loss(anny_model, state, problem,
+                                                                                    spec, profile)
+    (grad,) = torch.autograd.grad(term.sum(), state.transl)
+    t0 = 3 * layout.joints + 3
+    assert torch.allclose(acc.Jtr[0, t0 : t0 + 3], 0.5 * grad[0].double(), rtol=1e-4)
+    assert float(acc.Jtr.abs().sum()) > 0

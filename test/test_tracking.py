@@ -253,6 +253,12 @@ def test_a_warm_fit_that_lost_its_person_falls_back_to_the_cold_start():
     assert len(warm.calls) == 3 and len(cold.calls) == 3  # frame 0 new; frames 2 and 3 lost
     assert flags == [[], ["warm_start"], [], []]
     assert path.tracker.stats.fits["lost"] == 2 and path.tracker.stats.fits["warm"] == 1
+    # the warm solves and the lost person's cold fits know where the track expects them; a new track does not
+    predicted = [[None if p.predicted_pelvis is None else p.predicted_pelvis.round(3).tolist() for p in call]
+                 for call in cold.calls + warm.calls]
+    assert predicted[0] == [None] and all(row[0] is not None for row in predicted[1:])
+    assert all(np.allclose(c[0].predicted_pelvis, w[0].predicted_pelvis) for c, w in zip(cold.calls[1:],
+                                                                                         warm.calls[1:]))
 
 
 def test_a_person_seen_without_points_keeps_the_depth_their_points_had():

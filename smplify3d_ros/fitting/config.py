@@ -131,10 +131,13 @@ class LossWeights:
     points_depth: float  # the same hold for those of them whose few points (min_points_depth) measured the depth
     sigma_px: float  # Geman-McClure σ, stages 1-2 (and single-stage)
     sigma_px_final: float  # Geman-McClure σ, stage 3
+    # holds the translation where an initial estimate that carries a prediction put it (a tracked person's
+    # warm start: the motion filter's), per metre (w² · |t − t_pred|²); 0: free
+    motion: float
 
     def __post_init__(self) -> None:
         for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "chamfer_scale", "occlusion",
-                     "init_pose", "neutral", "upright", "image_depth", "points_depth"):
+                     "init_pose", "neutral", "upright", "image_depth", "points_depth", "motion"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(self.sigma_px > 0 and self.sigma_px_final > 0, "sigma_px values must be > 0")
 

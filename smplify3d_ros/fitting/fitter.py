@@ -463,7 +463,20 @@ class Fitter:
                                          for p in batch.people]), dtype=self.dtype, device=dev),
             keypoint_depth=None if batch.keypoint_depth is None else torch.as_tensor(
                 batch.keypoint_depth, dtype=self.dtype, device=dev),
+            predicted_transl=self._predicted_transl(batch),
         )
+
+    def _predicted_transl(self, batch: Batch) -> torch.Tensor | None:
+        """(B, 3) the translations the motion hold keeps each person near: the start's, for people whose
+        start (`init`, a warm start) was placed at their predicted pelvis; NaN rows for the others; None
+        when the profile has no hold or nobody such a start."""
+        if self.config.optimizer.weights.motion <= 0:
+            return None
+        rows = [np.asarray(p.init.transl, np.float64) if p.predicted_pelvis is not None and p.init is not None
+                and not batch.builtin[i] else np.full(3, np.nan) for i, p in enumerate(batch.people)]
+        if all(np.isnan(r).all() for r in rows):
+            return None
+        return self._tensor(rows)
 
     def _pixel_scale(self, batch: Batch) -> torch.Tensor | None:
         """(B,) reference height / each person's expected height in the image (f · stature / depth), the

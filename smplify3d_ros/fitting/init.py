@@ -98,6 +98,8 @@ def estimate_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, use_p
         chest = torso_points(obs.keypoints, K, obs.points, cfg)
         points = chest if len(chest) >= cfg.lidar_heading_min_points else obs.points
         return float(np.median(points[:, 2])) + cfg.lidar_surface_offset
+    if obs.predicted_pelvis is not None and np.isfinite(obs.predicted_pelvis[2]) and obs.predicted_pelvis[2] > 0:
+        return float(obs.predicted_pelvis[2])  # a tracked person: where their track, points and all, expects them
     return min(size_depths(obs, K, cfg, whole_body=False))
 
 

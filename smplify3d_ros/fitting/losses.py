@@ -191,6 +191,14 @@ def keypoint_depth_loss(keypoints: torch.Tensor, target: torch.Tensor, sigma: fl
     return geman_mcclure(diff, sigma).sum(-1)
 
 
+def motion_hold_residuals(transl: torch.Tensor, predicted: torch.Tensor, weight: float) -> torch.Tensor:
+    """(B, 3) √w · (t − t_pred), zero for rows without a prediction (NaN): a tracked person's place is
+    known before the frame is seen, to centimetres at 10 Hz, and a fit that jumps from it by what the image
+    and a few dozen points cannot tell apart is the jitter of a per-frame fit."""
+    valid = torch.isfinite(predicted)
+    return weight**0.5 * torch.where(valid, transl - torch.nan_to_num(predicted), torch.zeros_like(transl))
+
+
 def depth_hold_residuals(transl: torch.Tensor, init_transl: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     """(B,) √w · (z − z₀) / z₀, `weight` (B,) per person (0 for people with L_3D): without enough points
     for L_3D, the image's scale gives the depth only through the assumed body size, no better than the

@@ -411,6 +411,7 @@ def normal_equations(model: BodyModel, state, problem, stage, profile: Optimizer
         chamfer_block(body, problem, stage, profile, layout, acc)
     keypoint_depth_block(body, problem, stage, profile, acc)
     depth_hold_block(state, problem, stage, profile, layout, acc)
+    motion_hold_block(state, problem, stage, profile, layout, acc)
     prior_block(model, state, problem, stage, profile, layout, acc)
     return acc
 
@@ -437,6 +438,19 @@ def depth_hold_block(state, problem, stage, profile: OptimizerProfile, layout: L
     J = r.new_zeros(r.shape[0], 1, layout.size)
     J[:, 0, 3 * layout.joints + 5] = weight.sqrt() / problem.init_transl[:, 2].clamp(min=0.3)
     acc.add(r[:, None], J)
+
+
+def motion_hold_block(state, problem, stage, profile: OptimizerProfile, layout: Layout, acc: Residuals) -> None:
+    """`losses.motion_hold_residuals`, linear in the translation."""
+    if problem.predicted_transl is None or "transl" not in stage.params:
+        return
+    weight = _w(profile.weights.motion, profile)
+    r = losses.motion_hold_residuals(state.transl, problem.predicted_transl, weight)
+    valid = torch.isfinite(problem.predicted_transl).to(r.dtype)  # (B, 3)
+    J = r.new_zeros(r.shape[0], 3, layout.size)
+    t0 = 3 * layout.joints + 3  # the translation's columns follow the pose's and the root's
+    J[:, :, t0 : t0 + 3] = weight**0.5 * torch.diag_embed(valid)
+    acc.add(r, J)
 
 
 def damped_step(acc: Residuals, layout: Layout, damping: torch.Tensor) -> torch.Tensor:

@@ -105,6 +105,9 @@ def stage_loss(
     hold = solver.depth_hold_weights(problem, profile) if "transl" in stage.params else None
     if hold is not None:
         loss = loss + losses.depth_hold_residuals(state.transl, problem.init_transl, hold) ** 2
+    if problem.predicted_transl is not None and "transl" in stage.params:
+        loss = loss + (losses.motion_hold_residuals(state.transl, problem.predicted_transl,
+                                                    _w(weights.motion, profile)) ** 2).sum(-1)
     if stage.keypoint_depth_weight > 0 and problem.keypoint_depth is not None:
         loss = loss + _w(stage.keypoint_depth_weight, profile) * losses.keypoint_depth_loss(
             out.keypoints, problem.keypoint_depth, stage.keypoint_depth_sigma)
@@ -265,6 +268,12 @@ def optimize(
         report.iterations[stage.name], final = run_stage(
             model, state, problem, stage, profile, divergence_factor, diverged
         )
+    if final is not None and problem.predicted_transl is not None and "transl" in plan[-1].params:
+        # the motion hold is left out: the final loss says how well the body explains this frame, and a
+        # tracked person's refresh compares it with a cold fit's, which has no prediction to be held to
+        with torch.no_grad():
+            final = final - (losses.motion_hold_residuals(state.transl, problem.predicted_transl,
+                                                          _w(profile.weights.motion, profile)) ** 2).sum(-1)
     report.final_loss = final
     report.diverged = diverged
     return report
