@@ -105,9 +105,7 @@ def stage_loss(
     hold = solver.depth_hold_weights(problem, profile) if "transl" in stage.params else None
     if hold is not None:
         loss = loss + losses.depth_hold_residuals(state.transl, problem.init_transl, hold) ** 2
-    if problem.predicted_transl is not None and "transl" in stage.params:
-        loss = loss + (losses.motion_hold_residuals(state.transl, problem.predicted_transl,
-                                                    _w(weights.motion, profile)) ** 2).sum(-1)
+    loss = loss + motion_hold_loss(state, problem, stage, profile)
     if stage.keypoint_depth_weight > 0 and problem.keypoint_depth is not None:
         loss = loss + _w(stage.keypoint_depth_weight, profile) * losses.keypoint_depth_loss(
             out.keypoints, problem.keypoint_depth, stage.keypoint_depth_sigma)
@@ -116,6 +114,15 @@ def stage_loss(
                                       profile.chamfer_vertex_weight)
         loss = loss + _w(stage.chamfer_weight, profile) * chamfer * problem.use_lidar
     return loss
+
+
+def motion_hold_loss(state: FitState, problem: FitProblem, stage: StageSpec, profile: OptimizerProfile
+                     ) -> torch.Tensor | float:
+    """(B,) the motion hold's term of the stage's loss (`weights.motion`), 0 where it has none."""
+    if problem.predicted_transl is None or "transl" not in stage.params:
+        return 0.0
+    return (losses.motion_hold_residuals(state.transl, problem.predicted_transl,
+                                         _w(profile.weights.motion, profile)) ** 2).sum(-1)
 
 
 def run_stage(
@@ -268,12 +275,11 @@ def optimize(
         report.iterations[stage.name], final = run_stage(
             model, state, problem, stage, profile, divergence_factor, diverged
         )
-    if final is not None and problem.predicted_transl is not None and "transl" in plan[-1].params:
+    if final is not None:
         # the motion hold is left out: the final loss says how well the body explains this frame, and a
         # tracked person's refresh compares it with a cold fit's, which has no prediction to be held to
         with torch.no_grad():
-            final = final - (losses.motion_hold_residuals(state.transl, problem.predicted_transl,
-                                                          _w(profile.weights.motion, profile)) ** 2).sum(-1)
+            final = final - motion_hold_loss(state, problem, plan[-1], profile)
     report.final_loss = final
     report.diverged = diverged
     return report
