@@ -460,9 +460,10 @@ class Smplify3dNode(Node):
         self.monitor = InputMonitor([name for name, _ in self._inputs], cfg.diagnostics.rate_window_s)
         names = [name for name, _, _ in inputs]
         self.sync_names = names
+        latest = [names.index("camera_info")] if cfg.sync.latest_camera_info else []
         self.sync = make_synchronizer(len(inputs), cfg.sync.slop_s, cfg.sync.queue_size,
                                       partial(self._on_synced, names), cfg.sync.use_message_filters,
-                                      self.get_logger())
+                                      self.get_logger(), latest)
         self._subscriptions_in = [self._subscription(name, topic, cls, self._handler(i, name))
                                   for i, (name, topic, cls) in enumerate(inputs)]
         if cfg.topics.init_bodies:
@@ -600,9 +601,12 @@ class Smplify3dNode(Node):
             for name, topic in self._inputs]
 
     def no_frame_reason(self, now: float) -> str | None:
-        """Why no frame can be built now (a synchronized input silent), or None."""
+        """Why no frame can be built now (a synchronized input silent), or None. An input the frames take
+        the latest message of (the camera info) blocks them only until its first message."""
         stale = self.node_config.diagnostics.stale_after_s
-        silent = [(name, self.monitor.silent_s(name, now)) for name in self.sync_names]
+        latest = {self.sync_names[i] for i in self.sync.latest_inputs}
+        silent = [(name, self.monitor.silent_s(name, now)) for name in self.sync_names
+                  if name not in latest or not self.monitor.received.get(name)]
         silent = [(name, s) for name, s in silent if s >= stale]
         if not silent:
             return None

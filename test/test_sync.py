@@ -152,3 +152,50 @@ def test_threads_do_not_lose_sets():
     assert sync.stats.matched + sync.stats.dropped_unmatched // 2 >= n - 5
     assert len(out) == sync.stats.matched
     assert all(a.t_ns == b.t_ns for a, b in out)
+
+
+@pytest.mark.parametrize("kind", ["builtin", "message_filters"])
+def test_a_latest_input_joins_every_set_without_being_matched(kind):
+    """The camera info (`sync.latest_camera_info`): each set takes its latest message, whatever its
+    stamp; a late or missing one holds back no set; sets before its first message are dropped, counted."""
+    import node_support
+
+    from smplify3d_ros.runtime.sync import make_synchronizer
+
+    @dataclass
+    class Stamped:
+        name: str
+        header: object
+
+    def msg(name: str, t_ms: float) -> Stamped:
+        sec, ns = divmod(round(t_ms * MS), 1_000_000_000)
+        return Stamped(name, type("H", (), {"stamp": type("T", (), {"sec": sec, "nanosec": ns})()})())
+
+    out: list[tuple] = []
+    with node_support.fake_modules("message_filters"):
+        sync = make_synchronizer(3, 0.01, 5, lambda *m: out.append(tuple(x.name for x in m)),
+                                 kind == "message_filters", latest=[1])
+    assert type(sync).__name__ == ("MessageFiltersSync" if kind == "message_filters" else "ApproximateTimeSync")
+    sync.add(0, msg("image@0", 0.0))
+    sync.add(2, msg("points@0", 2.0))  # complete but no camera info yet: dropped, counted
+    assert out == [] and sync.stats.dropped_no_latest == 1
+    sync.add(1, msg("info@100", 100.0))
+    sync.add(0, msg("image@100", 100.0))
+    sync.add(2, msg("points@100", 101.0))
+    assert out == [("image@100", "info@100", "points@100")]
+    for t in (200.0, 300.0):  # the camera info of these frames comes late (or never): they are not held back
+        sync.add(0, msg(f"image@{t:.0f}", t))
+        sync.add(2, msg(f"points@{t:.0f}", t + 1.0))
+    assert out[1:] == [("image@200", "info@100", "points@200"), ("image@300", "info@100", "points@300")]
+    sync.add(1, msg("info@200", 200.0))  # a late info is the latest from now on, and completes nothing
+    sync.add(0, msg("image@400", 400.0))
+    sync.add(2, msg("points@400", 400.0))
+    assert out[3:] == [("image@400", "info@200", "points@400")]
+    assert sync.stats.matched == 4 and sync.queue_lengths() == [0, 0]
+    assert sync.latest_inputs == frozenset({1})
+
+
+def test_latest_inputs_must_leave_one_to_match():
+    for latest in ([2], [0, 1], [-1]):
+        with pytest.raises(ValueError, match="latest"):
+            ApproximateTimeSync(2, 0.1, 5, print, latest=latest)

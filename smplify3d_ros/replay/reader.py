@@ -214,8 +214,10 @@ class BagReader:
 
     def synchronizer(self, on_set: Any) -> Synchronizer:
         sync = self.node.sync
-        return make_synchronizer(len(self.topics.synchronized), sync.slop_s, sync.queue_size, on_set,
-                                 sync.use_message_filters, self.log)
+        names = [name for name, _ in self.topics.synchronized]
+        latest = [names.index("camera_info")] if sync.latest_camera_info else []
+        return make_synchronizer(len(names), sync.slop_s, sync.queue_size, on_set, sync.use_message_filters,
+                                 self.log, latest)
 
     def __iter__(self) -> Iterator[BagStep]:
         names = [name for name, _ in self.topics.synchronized]

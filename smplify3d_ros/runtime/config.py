@@ -82,6 +82,7 @@ class SyncConfig:
     queue_size: int  # messages kept per input while waiting for a match
     use_message_filters: bool  # message_filters when importable, else the built-in synchronizer
     time_reset_s: float  # a stamp this far behind the last frame's is a clock reset
+    latest_camera_info: bool  # each frame takes the latest camera info received; False: matched by stamp
 
     def __post_init__(self) -> None:
         require(0.0 < self.slop_s <= 5.0, "slop_s must be in (0, 5]")

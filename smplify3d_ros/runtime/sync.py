@@ -6,6 +6,13 @@ message arrives, each other input's message nearest to it in time is taken; if a
 one (stamps only grow on each input), so they are dropped as unmatched. A stamp that goes back on an
 input (a bag restarted, simulated time reset) clears every queue: the counters say how often.
 
+Inputs named in `latest` (the node's camera info, `sync.latest_camera_info`) are not matched: each set
+takes the latest message such an input has delivered. A camera's intrinsics do not change from frame to
+frame, and a small message sent right after a large image is the one a loaded DDS reader receives late
+(its reliable repair comes in a burst up to a second later, measured over loopback): matched, it held
+back every frame waiting for it. A set completed before a `latest` input's first message is dropped and
+counted (`dropped_no_latest`).
+
 `MessageFiltersSync` puts ROS's `message_filters.ApproximateTimeSynchronizer` behind the same interface
 (`sync.use_message_filters: true`, when message_filters is installed): the same `add`, the same
 duplicate and time-reset handling, the same `SyncStats`. message_filters never drops a message that an
@@ -19,7 +26,7 @@ from __future__ import annotations
 
 import threading
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -40,6 +47,7 @@ class SyncStats:
     dropped_unmatched: int = 0  # messages older than an emitted set: they can never match
     dropped_duplicate: int = 0  # a second message with the same stamp on one input
     dropped_reset: int = 0  # messages cleared by a time reset
+    dropped_no_latest: int = 0  # sets complete before a `latest` input (camera info) had any message
     time_resets: int = 0  # stamps that went back on an input
 
     @property
@@ -58,9 +66,12 @@ class _Synchronizer:
         queue_size: int,
         callback: Callable[..., None],
         stamp_ns: Callable[[Any], int] = header_stamp_ns,
+        latest: Collection[int] = (),
     ) -> None:
         if n_inputs < 1:
             raise ValueError(f"n_inputs must be >= 1, got {n_inputs}")
+        if any(not 0 <= i < n_inputs for i in latest) or len(set(latest)) >= n_inputs:
+            raise ValueError(f"latest must name some but not all of inputs 0..{n_inputs - 1}, got {list(latest)}")
         if slop_s < 0:
             raise ValueError(f"slop_s must be >= 0, got {slop_s}")
         if queue_size < 1:
@@ -71,6 +82,10 @@ class _Synchronizer:
         self.queue_size = queue_size
         self.callback = callback
         self.stamp_ns = stamp_ns
+        self.latest_inputs = frozenset(latest)
+        self._slots = [i for i in range(n_inputs) if i not in self.latest_inputs]  # matched inputs, in order
+        self.n_matched = len(self._slots)
+        self._latest: dict[int, Any] = {}  # `latest` input -> its last message
         self._last: list[int | None] = [None] * n_inputs
         self._lock = threading.RLock()
         self.stats = SyncStats(received=[0] * n_inputs)
@@ -82,10 +97,23 @@ class _Synchronizer:
         stamp = self.stamp_ns(msg) if stamp_ns is None else int(stamp_ns)
         with self._lock:
             matched = self._add_locked(index, msg, stamp)
+            matched = None if matched is None else self._with_latest(matched)
+            self.stats.matched += matched is not None
         if matched is not None:
             self.callback(*matched)
             return True
         return False
+
+    def _with_latest(self, matched: list[Any]) -> list[Any] | None:
+        """The matched inputs' set with each `latest` input's last message put in its place (input order);
+        None, counted, while a `latest` input has had none."""
+        if not self.latest_inputs:
+            return matched
+        if len(self._latest) < len(self.latest_inputs):
+            self.stats.dropped_no_latest += 1
+            return None
+        by_input = dict(zip(self._slots, matched, strict=True)) | self._latest
+        return [by_input[i] for i in range(self.n_inputs)]
 
     def reset(self) -> None:
         """Forget every queued message (counted as reset drops) and the last stamps."""
@@ -104,10 +132,10 @@ class _Synchronizer:
             self.stats.dropped_duplicate += 1
             return None
         self._last[index] = stamp
-        matched = self._match(index, msg, stamp)
-        if matched is not None:
-            self.stats.matched += 1
-        return matched
+        if index in self.latest_inputs:
+            self._latest[index] = msg
+            return None
+        return self._match(self._slots.index(index), msg, stamp)
 
     # -- the policy ----------------------------------------------------------------------------------
     def queue_lengths(self) -> list[int]:
@@ -117,7 +145,8 @@ class _Synchronizer:
         raise NotImplementedError
 
     def _match(self, index: int, msg: Any, stamp: int) -> list[Any] | None:
-        """Queue the message; the set it completes, in input order, or None."""
+        """Queue the message of matched input `index` (its position among the matched inputs); the set it
+        completes, one message per matched input in their order, or None."""
         raise NotImplementedError
 
 
@@ -127,7 +156,7 @@ class ApproximateTimeSync(_Synchronizer):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._queues: list[deque[tuple[int, Any]]] = [deque() for _ in range(self.n_inputs)]
+        self._queues: list[deque[tuple[int, Any]]] = [deque() for _ in range(self.n_matched)]
 
     def queue_lengths(self) -> list[int]:
         with self._lock:
@@ -173,6 +202,7 @@ class ApproximateTimeSync(_Synchronizer):
 
 class Synchronizer(Protocol):
     stats: SyncStats
+    latest_inputs: frozenset[int]
 
     def add(self, index: int, msg: Any, stamp_ns: int | None = None) -> bool: ...
 
@@ -195,10 +225,10 @@ class MessageFiltersSync(_Synchronizer):
         self._build()
 
     def _build(self) -> None:
-        self._filters = [self._mf.SimpleFilter() for _ in range(self.n_inputs)]
+        self._filters = [self._mf.SimpleFilter() for _ in range(self.n_matched)]
         self._sync = self._mf.ApproximateTimeSynchronizer(self._filters, self.queue_size, self.slop_s)
         self._sync.registerCallback(self._on_set)
-        self._queued: list[set[int]] = [set() for _ in range(self.n_inputs)]
+        self._queued: list[set[int]] = [set() for _ in range(self.n_matched)]
 
     def _on_set(self, *msgs: Any) -> None:
         self._emitted = list(msgs)
@@ -226,18 +256,18 @@ class MessageFiltersSync(_Synchronizer):
 
 def make_synchronizer(
     n_inputs: int, slop_s: float, queue_size: int, callback: Callable[..., None], use_message_filters: bool,
-    log: Any = None,
+    log: Any = None, latest: Collection[int] = (),
 ) -> Synchronizer:
     """The built-in synchronizer, or message_filters' when asked for and importable (else the built-in,
-    with a log line saying so)."""
+    with a log line saying so). `latest`: inputs whose latest message joins each set (module docstring)."""
     if use_message_filters:
         try:
-            return MessageFiltersSync(n_inputs, slop_s, queue_size, callback)
+            return MessageFiltersSync(n_inputs, slop_s, queue_size, callback, latest=latest)
         except ImportError:
             if log is not None:
                 log.info("sync.use_message_filters: message_filters is not installed; using the built-in "
                          "synchronizer")
-    return ApproximateTimeSync(n_inputs, slop_s, queue_size, callback)
+    return ApproximateTimeSync(n_inputs, slop_s, queue_size, callback, latest=latest)
 
 
 def sync_values(sync: Synchronizer) -> dict[str, int]:
@@ -246,7 +276,8 @@ def sync_values(sync: Synchronizer) -> dict[str, int]:
     return {
         "sync.matched": s.matched, "sync.dropped_unmatched": s.dropped_unmatched,
         "sync.dropped_overflow": s.dropped_overflow, "sync.dropped_duplicate": s.dropped_duplicate,
-        "sync.dropped_reset": s.dropped_reset, "sync.time_resets": s.time_resets,
+        "sync.dropped_reset": s.dropped_reset, "sync.dropped_no_latest": s.dropped_no_latest,
+        "sync.time_resets": s.time_resets,
     }
 
 
