@@ -30,7 +30,8 @@ from smplify3d_ros.fitting.fitter import FitOptions, Fitter
 from smplify3d_ros.lidar.config import ExtractionConfig
 from smplify3d_ros.lidar.extract import ExtractionResult, extract_people
 from smplify3d_ros.settings import to_dict
-from smplify3d_ros.tracking.tracker import Tracker, WarmStart
+from smplify3d_ros.tracking.background import BackgroundError, BackgroundFitter
+from smplify3d_ros.tracking.tracker import Track, Tracker, WarmStart
 from smplify3d_ros.types import (
     FLAG_DIVERGED,
     FLAG_EXTERNAL_INIT,
@@ -61,6 +62,17 @@ class FrameFits:
     # "extract", "fit" -> seconds; tracked frames with warm fits also "warm_fit_per_person" (their batch's
     # warm solve divided by its people)
     latency: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class _PendingRefresh:
+    """A refresh's cold fit running in the background (`tracking.refresh_background`)."""
+
+    job: int  # BackgroundFitter job
+    index: int  # the person's place in that job's batch
+    track: Track  # the track it was started for (a returning id's new track does not take it)
+    frames: int  # the track's `frames` when it started (its frame not yet counted)
+    warm: BodyFit  # the warm fit of that frame, which the cold fit must beat
 
 
 def _box_area(uv: np.ndarray) -> float:
@@ -104,16 +116,41 @@ def extract_frame_people(frame: Frame, config: ExtractionConfig,
 class FrameFitter:
     """The core configuration and a `Fitter`; `fit(frame)` runs one frame's path (module docstring).
     `tracker` follows people across the frames given to `fit`, in order; `warm_fitter` makes the warm fits
-    (default: a `Fitter` of the warm profile, sharing `fitter`'s body model)."""
+    (default: a `Fitter` of the warm profile, sharing `fitter`'s body model); `background` fits the
+    refreshes beside the frames (default: a `BackgroundFitter` of `fitter`'s configuration, started with
+    the first refresh or `start_background`). `close` ends that process."""
 
     def __init__(self, config: Config, fitter: Fitter | None = None, tracker: Tracker | None = None,
-                 warm_fitter: Fitter | None = None) -> None:
+                 warm_fitter: Fitter | None = None, background: BackgroundFitter | None = None) -> None:
         self.config = config
         self.fitter = fitter if fitter is not None else Fitter(config.fitting)
         self.tracker = tracker
         self.warm_fitter = warm_fitter
         if tracker is not None and warm_fitter is None:
             self.warm_fitter = warm_fitter_for(config, self.fitter)
+        self._background = background  # the refreshes' helper process (started on demand when None)
+        self._background_failed = False  # after a failure, refreshes are fitted inline
+        self._pending: dict[int, _PendingRefresh] = {}  # person id -> refresh running in the background
+        self._jobs: dict[int, list[BodyFit]] = {}  # background job -> its fits, while some are not taken
+
+    # -- background refreshes ------------------------------------------------------------------------
+    @property
+    def refreshes_in_background(self) -> bool:
+        """Whether refreshes run in the helper process (`tracking.refresh_background`, a real `Fitter`)."""
+        return (self.tracker is not None and self.config.tracking.refresh_background and not self._background_failed
+                and (self._background is not None or isinstance(self.fitter, Fitter)))
+
+    def start_background(self) -> None:
+        """Start the refreshes' helper process now (the node, at startup: it loads its own body model,
+        seconds); otherwise it starts with the first refresh."""
+        if self.refreshes_in_background and self._background is None:
+            self._background = BackgroundFitter(self.fitter.config, self.config.tracking.refresh_nice)
+
+    def close(self) -> None:
+        """End the helper process, if any (pending refreshes are forgotten)."""
+        if self._background is not None:
+            self._background.close()
+        self._background, self._pending, self._jobs = None, {}, {}
 
     def select_people(self, frame: Frame) -> tuple[Frame, Counter]:
         """Usable people only: far out-of-image keypoints become missing, people with too few keypoints
@@ -207,6 +244,7 @@ class FrameFitter:
         result (velocity onto each fit)."""
         tracker, stamp, K = self.tracker, observed.frame.stamp_ns, observed.frame.camera.K
         people = observed.observations
+        self._take_background_refreshes(people)
         warm_start = {i: tracker.warm_start(p.person_id, stamp) for i, p in enumerate(people)
                       if p.init is None and not self._regained(p)}
         warm = [i for i, start in warm_start.items() if start is not None]
@@ -221,12 +259,17 @@ class FrameFitter:
             for i, fit in zip(warm, warm_results, strict=True):
                 if not self._lost(fit, people[i], K):
                     warm_fits[i] = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
-        refresh = self._refreshes_due(list(warm_fits), people)
+        refresh = self._refreshes_due([i for i in warm_fits if people[i].person_id not in self._pending], people)
         for i in refresh:
             track = tracker.track(people[i].person_id)
             track.last_refresh_frame = track.frames
         settled = self._settled_refreshes(sorted(refresh), people, warm_start, K, observed.lidar_origin, options)
-        cold = [i for i in range(len(people)) if i not in warm_fits or (i in refresh and i not in settled)]
+        inline = refresh - settled
+        if self.refreshes_in_background:  # fitted beside the next frames; this frame is output warm
+            self._start_background_refreshes(sorted(inline), people, warm_start, warm_fits, K,
+                                             observed.lidar_origin, options)
+            inline = set()
+        cold = [i for i in range(len(people)) if i not in warm_fits or i in inline]
         fits = dict(warm_fits)
         if cold:
             cold_people = [self._cold_start(people[i], warm_start.get(i), i in refresh) for i in cold]
@@ -237,9 +280,57 @@ class FrameFitter:
         lost = len(warm) - len(warm_fits)
         tracker.stats.fits.update({"warm": len(warm_fits) - refreshed, "lost": lost, "refresh": len(refresh),
                                    "refresh_settled": len(settled), "refreshed": refreshed,
-                                   "cold": len(cold) - (len(refresh) - len(settled)) - lost})
+                                   "refresh_background": len(refresh) - len(settled) - len(inline),
+                                   "cold": len(cold) - len(inline) - lost})
         pose = self.fitter.model.posed if isinstance(self.fitter, Fitter) else None  # stand-ins: unsmoothed
         return tracker.update([fits[i] for i in range(len(people))], people, stamp, pose)
+
+    def _start_background_refreshes(self, refresh: list[int], people: list[PersonObservation],
+                                    warm_start: dict[int, WarmStart | None], warm_fits: dict[int, BodyFit],
+                                    K: np.ndarray, lidar_origin: np.ndarray, options: FitOptions | None) -> None:
+        """Send the refreshes' cold fits (one batch) to the helper process."""
+        if not refresh:
+            return
+        self.start_background()
+        batch = [self._cold_start(people[i], warm_start.get(i), True) for i in refresh]
+        try:
+            job = self._background.submit(batch, K, lidar_origin, options)
+        except BackgroundError:
+            self._background_failed = True  # from now on inline; this frame's refreshes are skipped
+            self.tracker.stats.fits["refresh_failed"] += len(refresh)
+            return
+        for k, i in enumerate(refresh):
+            track = self.tracker.track(people[i].person_id)
+            self._pending[people[i].person_id] = _PendingRefresh(job, k, track, track.frames, warm_fits[i])
+
+    def _take_background_refreshes(self, people: list[PersonObservation]) -> None:
+        """The background refreshes due in this frame: those `tracking.refresh_apply_frames` fitted frames
+        of their track past the frame they started on (waiting for them if need be, so that the node and
+        the replay take each at the same frame). A cold fit clearly better than its frame's warm fit
+        (`_better`) becomes the track's last fit, the start of this frame's warm solve; a track that was
+        refitted cold since, or ended, does not take it."""
+        cfg = self.config.tracking
+        for pid in [p.person_id for p in people if p.person_id in self._pending]:
+            pending = self._pending[pid]
+            track = self.tracker.track(pid)
+            if track is pending.track and track.frames - pending.frames <= cfg.refresh_apply_frames:
+                continue
+            del self._pending[pid]
+            try:
+                if pending.job not in self._jobs:
+                    self._jobs[pending.job] = self._background.result(pending.job, cfg.refresh_timeout_s)
+                cold = self._jobs[pending.job][pending.index]
+            except BackgroundError:
+                self._background_failed = True
+                self.tracker.stats.fits["refresh_failed"] += 1
+                self.close()
+                return
+            if track is pending.track and track.last_fit is not None and FLAG_WARM_START in track.last_fit.flags \
+                    and self._better(cold, pending.warm):
+                track.last_fit = cold
+                self.tracker.stats.fits["refreshed"] += 1
+        waiting = {p.job for p in self._pending.values()}
+        self._jobs = {job: fits for job, fits in self._jobs.items() if job in waiting}
 
     @staticmethod
     def _cold_start(person: PersonObservation, warm_start: WarmStart | None, refresh: bool) -> PersonObservation:

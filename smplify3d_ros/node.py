@@ -294,6 +294,7 @@ class Smplify3dNode(Node):
         self.qos_incompatible: Counter = Counter()  # publishers per input whose QoS cannot match ours
         self._subscribe()
         self._start_extrinsic_tf()
+        self.processor.frames.start_background()  # its body model loads while the node starts
         freeze_startup_heap()  # the body model and torch out of the collector's walks (runtime/heap.py)
         self._worker = threading.Thread(target=self._work, name="smplify3d_fitting", daemon=True)
         self._worker.start()
@@ -638,6 +639,7 @@ class Smplify3dNode(Node):
         self._queue.close()
         if self._worker.is_alive() and self._worker is not threading.current_thread():
             self._worker.join(timeout=10.0)
+        self.processor.frames.close()  # the background refreshes' process
         super().destroy_node()
 
 

@@ -314,6 +314,7 @@ def _run(bag: Path, out: Output | None, picture: Output | None, progress: bool, 
         processor = MessageProcessor(config, node_config, RosbagsFactory(reader.typestore), fitter=fitter,
                                      transforms=Transforms(node_config.extrinsic, reader.tf.lookup, log=log),
                                      log=log, keep_frames=picture is not None, build_outputs=out is not None)
+        processor.frames.start_background()  # as the node does: the refreshes' process loads meanwhile
         freeze_startup_heap()  # as the node does: no full collection walks the body model per frame
         writer = None if out is None else _open_writer(out, reader)
         replay = _Replay(reader, processor, writer, summary, picture is not None, node_config.diagnostics_period_s)
@@ -329,6 +330,7 @@ def _run(bag: Path, out: Output | None, picture: Output | None, progress: bool, 
             raise
         finally:
             bar.close()
+            processor.frames.close()
     if picture is not None:
         if replay.picture.write(picture.temp, processor.fitter.faces_np, picture.target.suffix):
             picture.commit()

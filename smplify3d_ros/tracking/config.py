@@ -29,6 +29,10 @@ class TrackingConfig:
     refresh_max_people: int  # people refreshed in one frame at most, the longest unrefreshed first (0: no limit)
     refresh_margin: float  # a refresh's cold fit replaces the warm fit when its final loss is below this fraction
     refresh_compete_first: bool  # a refresh fits cold only when a built-in hypothesis beats the warm start first
+    refresh_background: bool  # a refresh's cold fit runs in a helper process; its frame is output warm
+    refresh_apply_frames: int  # ... and is taken this many fitted frames of its track later (waited for)
+    refresh_timeout_s: float  # longest wait for a background refresh (its process starting included)
+    refresh_nice: int  # scheduling niceness of the helper process (0-19: higher yields the CPU sooner)
     lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of the person's image height) is lost
     lost_chamfer_m: float  # ... or whose mesh is farther than this from its points
 
@@ -41,6 +45,9 @@ class TrackingConfig:
         require(self.refresh_frames >= 0, "refresh_frames must be >= 0 (0: never)")
         require(self.refresh_max_people >= 0, "refresh_max_people must be >= 0 (0: no limit)")
         require(0.0 < self.refresh_margin <= 1.0, "refresh_margin must be in (0, 1]")
+        require(self.refresh_apply_frames >= 0, "refresh_apply_frames must be >= 0")
+        require(self.refresh_timeout_s > 0, "refresh_timeout_s must be > 0")
+        require(0 <= self.refresh_nice <= 19, "refresh_nice must be in [0, 19]")
         require(0.0 < self.pose_smoothing <= 1.0, "pose_smoothing must be in (0, 1]")
         require(0.0 <= self.shape_rate <= 1.0, "shape_rate must be in [0, 1]")
         require(self.accel_sigma_mps2 > 0 and self.position_sigma_m > 0 and self.image_depth_sigma_m > 0,

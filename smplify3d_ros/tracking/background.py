@@ -1,0 +1,124 @@
+"""Cold fits in a helper process beside the frame path: the tracking's refreshes (`tracking.refresh_*`).
+
+A refresh fits a tracked person cold (the built-in initializer, the warm start one hypothesis among its
+own) to catch a warm solve kept in a wrong minimum, e.g. a heading it inherited. Inline, that cold fit
+holds up its frame for 3-5 frame periods at 10 Hz; a node that cannot keep up drops those frames. Here
+it runs in a process of its own, at a lower scheduling priority (`tracking.refresh_nice`), on the core
+the warm fits leave free: its frame is output warm, and the tracker takes the cold fit, when it is
+better, as the start of a later warm solve (`frame_fitter.FrameFitter`).
+
+The process is this module run as `python -m smplify3d_ros.tracking.background FD NICE`: it talks over
+one end of a socket pair (`multiprocessing.connection.Connection`: pickled objects, both ends this
+package's own; nothing read from a file or the network), builds its `Fitter` from the `FittingConfig`
+it is sent first, then answers each job `(id, people, K, lidar_origin, options)` with `(id, fits)` or
+`(id, "error text")`. It exits when the connection closes. A separate interpreter, not a thread: the
+fits are Python-heavy and would share the interpreter lock with the warm fits.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import weakref
+from multiprocessing.connection import Connection
+from typing import Any
+
+from smplify3d_ros.fitting.config import FittingConfig
+from smplify3d_ros.types import BodyFit
+
+
+class BackgroundError(RuntimeError):
+    """The helper process failed (it died, or a job did not finish within the timeout)."""
+
+
+def _stop(proc: subprocess.Popen, conn: Connection) -> None:
+    try:
+        conn.close()
+    except OSError:
+        pass
+    try:
+        proc.wait(timeout=5.0)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+class BackgroundFitter:
+    """A `Fitter` of `config` in a helper process: `submit` a frame's people, `result` waits for the fits.
+    Jobs are answered in order. `close` (or garbage collection, or the interpreter's exit) ends it."""
+
+    def __init__(self, config: FittingConfig, nice: int = 0) -> None:
+        ours, theirs = socket.socketpair()
+        try:
+            self._proc = subprocess.Popen(
+                [sys.executable, "-m", "smplify3d_ros.tracking.background", str(theirs.fileno()), str(nice)],
+                pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
+        finally:
+            theirs.close()
+        self._conn = Connection(ours.detach())
+        self._conn.send(config)
+        self._next = 0
+        self._done: dict[int, list[BodyFit] | str] = {}
+        self._finalizer = weakref.finalize(self, _stop, self._proc, self._conn)
+
+    @property
+    def alive(self) -> bool:
+        return self._finalizer.alive and self._proc.poll() is None
+
+    def submit(self, people: list[Any], K: Any, lidar_origin: Any, options: Any) -> int:
+        """Queue a fit of `people` (`Fitter.fit`'s arguments); returns the job's id."""
+        job, self._next = self._next, self._next + 1
+        try:
+            self._conn.send((job, people, K, lidar_origin, options))
+        except (OSError, ValueError) as e:
+            raise BackgroundError(f"the background fitter is gone ({type(e).__name__}: {e})") from None
+        return job
+
+    def result(self, job: int, timeout_s: float) -> list[BodyFit]:
+        """The fits of `job`, waiting up to `timeout_s`. Raises BackgroundError when the process died, the
+        job failed in it, or the time ran out."""
+        while job not in self._done:
+            try:
+                if not self._conn.poll(timeout_s):
+                    raise BackgroundError(f"no result within {timeout_s:g} s")
+                done, fits = self._conn.recv()
+            except (EOFError, OSError) as e:
+                raise BackgroundError(f"the background fitter exited ({type(e).__name__})") from None
+            self._done[done] = fits
+        fits = self._done.pop(job)
+        if isinstance(fits, str):
+            raise BackgroundError(f"the background fit failed: {fits}")
+        return fits
+
+    def close(self) -> None:
+        self._finalizer()
+
+
+def _serve(conn: Connection) -> None:
+    from smplify3d_ros.fitting.fitter import Fitter
+
+    fitter = Fitter(conn.recv())
+    while True:
+        try:
+            job, people, K, origin, options = conn.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            conn.send((job, fitter.fit(people, K, origin, options)))
+        except Exception as e:  # noqa: BLE001 - one job's failure goes back as text; the process serves on
+            conn.send((job, f"{type(e).__name__}: {e}"))
+
+
+if __name__ == "__main__":
+    fd, nice = int(sys.argv[1]), int(sys.argv[2])
+    if nice:
+        try:
+            os.nice(nice)
+        except OSError:
+            pass
+    try:
+        _serve(Connection(fd))
+    except KeyboardInterrupt:
+        pass
