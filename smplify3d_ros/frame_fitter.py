@@ -140,11 +140,16 @@ class FrameFitter:
         return (self.tracker is not None and self.config.tracking.refresh_background and not self._background_failed
                 and (self._background is not None or isinstance(self.fitter, Fitter)))
 
-    def start_background(self) -> None:
-        """Start the refreshes' helper process now (the node, at startup: it loads its own body model,
-        seconds); otherwise it starts with the first refresh."""
+    def start_background(self, wait: bool = False) -> None:
+        """Start the refreshes' helper process now (it loads a body model of its own: seconds), and with
+        `wait` wait until it is ready (the node, at startup: else its first refresh would wait for the
+        load, holding up a frame); otherwise it starts with the first refresh."""
         if self.refreshes_in_background and self._background is None:
             self._background = BackgroundFitter(self.fitter.config, self.config.tracking.refresh_nice)
+        if wait and self._background is not None and not self._background.wait_ready(
+                self.config.tracking.refresh_timeout_s):
+            self._background_failed = True  # refreshes inline; counted when a frame would have sent one
+            self.close()
 
     def close(self) -> None:
         """End the helper process, if any (pending refreshes are forgotten)."""

@@ -294,7 +294,7 @@ class Smplify3dNode(Node):
         self.qos_incompatible: Counter = Counter()  # publishers per input whose QoS cannot match ours
         self._subscribe()
         self._start_extrinsic_tf()
-        self.processor.frames.start_background()  # its body model loads while the node starts
+        self.processor.frames.start_background(wait=True)  # the refreshes' process, ready before any frame
         freeze_startup_heap()  # the body model and torch out of the collector's walks (runtime/heap.py)
         self._worker = threading.Thread(target=self._work, name="smplify3d_fitting", daemon=True)
         self._worker.start()

@@ -26,6 +26,9 @@ class InProcessBackground:
     def __init__(self, fitter) -> None:
         self.fitter, self.jobs, self.taken, self.fail = fitter, [], [], False
 
+    def wait_ready(self, timeout_s):
+        return not self.fail
+
     def submit(self, people, K, lidar_origin, options):
         self.jobs.append(people)
         return len(self.jobs) - 1
@@ -113,6 +116,7 @@ def test_the_helper_process_fits_as_the_fitter_in_this_process(anny_model):
     here = Fitter(config, anny_model).fit([person], K)[0]
     background = BackgroundFitter(config, nice=5)
     try:
+        assert background.wait_ready(90.0)
         job = background.submit([person], K, None, None)
         bad = background.submit([person], np.zeros(2), None, None)  # K of the wrong shape: fails there
         there = background.result(job, timeout_s=90.0)[0]

@@ -108,7 +108,7 @@ def run_sequence(frames: list[Any], setup: Any, variant: str, detector: str, see
     tracker = Tracker(setup.config.tracking) if variant == "tracked" else None
     path = FrameFitter(setup.config, setup.fitter, tracker, setup.warm_fitter if tracker else None)
     people: dict[int, PersonTrack] = {p.person_id: PersonTrack() for p in frames[0].people}
-    path.start_background()  # background refreshes: their process loads before the clock runs
+    path.start_background(wait=True)  # background refreshes: their process loads before the clock runs
     try:
         seconds, fitted, warm_seconds = _fit_frames(path, frames, detector, people)
     finally:

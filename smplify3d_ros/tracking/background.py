@@ -10,7 +10,7 @@ better, as the start of a later warm solve (`frame_fitter.FrameFitter`).
 The process is this module run as `python -m smplify3d_ros.tracking.background FD NICE`: it talks over
 one end of a socket pair (`multiprocessing.connection.Connection`: pickled objects, both ends this
 package's own; nothing read from a file or the network), builds its `Fitter` from the `FittingConfig`
-it is sent first, then answers each job `(id, people, K, lidar_origin, options)` with `(id, fits)` or
+it is sent first (and says `READY`), then answers each job `(id, people, K, lidar_origin, options)` with `(id, fits)` or
 `(id, "error text")`. It exits when the connection closes. A separate interpreter, not a thread: the
 fits are Python-heavy and would share the interpreter lock with the warm fits.
 """
@@ -27,6 +27,8 @@ from typing import Any
 
 from smplify3d_ros.fitting.config import FittingConfig
 from smplify3d_ros.types import BodyFit
+
+READY = "ready"  # the process's first message: its fitter is built
 
 
 class BackgroundError(RuntimeError):
@@ -61,11 +63,22 @@ class BackgroundFitter:
         self._conn.send(config)
         self._next = 0
         self._done: dict[int, list[BodyFit] | str] = {}
+        self._ready = False
         self._finalizer = weakref.finalize(self, _stop, self._proc, self._conn)
 
     @property
     def alive(self) -> bool:
         return self._finalizer.alive and self._proc.poll() is None
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Wait until the process has built its fitter (its body model loaded); False when it did not in
+        `timeout_s` or exited."""
+        if not self._ready:
+            try:
+                self._ready = self._conn.poll(timeout_s) and self._conn.recv() == READY
+            except (EOFError, OSError):
+                return False
+        return self._ready
 
     def submit(self, people: list[Any], K: Any, lidar_origin: Any, options: Any) -> int:
         """Queue a fit of `people` (`Fitter.fit`'s arguments); returns the job's id."""
@@ -79,6 +92,8 @@ class BackgroundFitter:
     def result(self, job: int, timeout_s: float) -> list[BodyFit]:
         """The fits of `job`, waiting up to `timeout_s`. Raises BackgroundError when the process died, the
         job failed in it, or the time ran out."""
+        if not self.wait_ready(timeout_s):
+            raise BackgroundError(f"the background fitter was not ready within {timeout_s:g} s")
         while job not in self._done:
             try:
                 if not self._conn.poll(timeout_s):
@@ -100,6 +115,7 @@ def _serve(conn: Connection) -> None:
     from smplify3d_ros.fitting.fitter import Fitter
 
     fitter = Fitter(conn.recv())
+    conn.send(READY)
     while True:
         try:
             job, people, K, origin, options = conn.recv()
