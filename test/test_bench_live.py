@@ -20,6 +20,11 @@ def test_the_node_is_timed_live_on_a_bag_played_by_a_process_of_its_own():
     for key in ("latency_ms.arrival.p50", "latency_ms.fit.p50", "sync.matched"):
         assert key in result.diagnostics, sorted(result.diagnostics)
     assert "output rate" in result.text()
+    # what a robot got, against the bag's ground truth: every published frame of the bag is scored
+    accuracy = result.accuracy
+    assert accuracy is not None and accuracy.frames == len(result.bodies) and accuracy.people >= accuracy.frames
+    assert 0.0 < accuracy.mpjpe_mm < 300.0, accuracy
+    assert "ground truth, frames published: MPJPE" in result.text()
 
 
 def test_the_node_subscribes_to_the_image_topic_the_bag_has():

@@ -17,6 +17,7 @@ and exits 2.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import random
@@ -30,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from smplify3d_ros.keypoints import COCO17_NAMES
+
 DEFAULT_PROFILE = "jackal_vlp16"  # the node's own default params_file
 INPUT_TYPES = {
     "image": "sensor_msgs/msg/Image",
@@ -41,11 +44,25 @@ INPUT_TYPES = {
 
 
 @dataclass
+class LiveAccuracy:
+    """The published bodies against the bag's ground truth (`/ground_truth/bodies`), as a robot got them:
+    only the frames the node published (the others it dropped, keeping up), each at its own stamp."""
+
+    frames: int  # published documents whose stamp has a ground-truth frame
+    people: int  # ground-truth people in those frames with a body of their id
+    missed: int  # ... without one
+    mpjpe_mm: float  # mean over `people` of the COCO-17 joint error, mm
+
+
+@dataclass
 class LiveResult:
     frames_played: int = 0
     duration_s: float = 0.0  # from the first to the last played message
     bodies: list[tuple[int, int, int]] = field(default_factory=list)  # (stamp ns, received ns, people)
     diagnostics: dict[str, str] = field(default_factory=dict)
+    offset_ns: int | None = None  # what the player added to every stamp of the bag
+    joints: dict[int, dict[int, np.ndarray]] = field(default_factory=dict)  # stamp ns -> id -> (17, 3), m
+    accuracy: LiveAccuracy | None = None  # with a bag that has ground truth
 
     @property
     def latencies_ms(self) -> np.ndarray:
@@ -61,6 +78,10 @@ class LiveResult:
         if len(lat):
             lines.append(f"latency image stamp -> ~/bodies: median {np.median(lat):.0f} ms, "
                          f"95th percentile {np.percentile(lat, 95):.0f} ms, max {lat.max():.0f} ms")
+        if self.accuracy is not None:
+            a = self.accuracy
+            lines.append(f"ground truth, frames published: MPJPE {a.mpjpe_mm:.1f} mm over {a.people} people in "
+                         f"{a.frames} frames ({a.missed} missed)")
         keys = [k for k in sorted(self.diagnostics) if k.startswith(("queue.", "tracking.", "sync.matched",
                                                                        "latency_ms.", "drop."))]
         lines += [f"  {k}: {self.diagnostics[k]}" for k in keys]
@@ -81,8 +102,9 @@ class _Player:
                                                              10)
                            for topic, name in self.topics.items()}
 
-    def play(self, path: Path, speed: float, stop: threading.Event) -> tuple[int, float]:
-        """(frames played, seconds) of one pass over the bag at `speed` times its recorded rate."""
+    def play(self, path: Path, speed: float, stop: threading.Event) -> tuple[int, float, int | None]:
+        """(frames played, seconds, the offset added to every stamp in ns) of one pass over the bag at
+        `speed` times its recorded rate."""
         from rclpy.serialization import deserialize_message
         from rosbags.rosbag2 import Reader
 
@@ -108,7 +130,7 @@ class _Player:
                 publisher.publish(msg)
                 frames += name in ("image", "compressed_image")
                 last_wall = time.monotonic()
-        return frames, (last_wall - first_wall) if first_wall is not None and last_wall else 0.0
+        return frames, (last_wall - first_wall) if first_wall is not None and last_wall else 0.0, offset
 
     def wait_for_subscribers(self, timeout_s: float) -> bool:
         """Whether every publisher was matched by a subscriber within `timeout_s` (discovery)."""
@@ -145,7 +167,7 @@ def bag_topic_parameters(bag: Path, params: str | None, overrides: dict[str, Any
 
 def play_main(argv: list[str]) -> int:
     """The player process: `python -m smplify3d_ros.eval.live --play BAG TOPICS_JSON SPEED`. Publishes
-    once its subscribers are matched, then prints `{"frames": N, "duration_s": S}` on stdout."""
+    once its subscribers are matched, then prints `{"frames": N, "duration_s": S, "offset_ns": O}` on stdout."""
     import rclpy
 
     bag, topics, speed = Path(argv[0]), json.loads(argv[1]), float(argv[2])
@@ -155,8 +177,8 @@ def play_main(argv: list[str]) -> int:
         player = _Player(topics, node)
         player.wait_for_subscribers(10.0)
         time.sleep(0.2)  # the subscriptions' side of the match
-        frames, duration = player.play(bag, speed, threading.Event())
-        print(json.dumps({"frames": frames, "duration_s": duration}), flush=True)
+        frames, duration, offset = player.play(bag, speed, threading.Event())
+        print(json.dumps({"frames": frames, "duration_s": duration, "offset_ns": offset}), flush=True)
         node.destroy_node()
     except KeyboardInterrupt:
         return 130
@@ -168,8 +190,9 @@ def play_main(argv: list[str]) -> int:
     return 0
 
 
-def _play_in_child(bag: Path, topics: dict[str, str], speed: float) -> tuple[int, float]:
-    """(frames, seconds) played by a player process (`play_main`) on this process's ROS domain."""
+def _play_in_child(bag: Path, topics: dict[str, str], speed: float) -> tuple[int, float, int | None]:
+    """(frames, seconds, stamp offset ns) played by a player process (`play_main`) on this process's ROS
+    domain."""
     command = [sys.executable, "-m", "smplify3d_ros.eval.live", "--play", str(bag), json.dumps(topics), str(speed)]
     child = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=dict(os.environ))
     try:
@@ -181,7 +204,8 @@ def _play_in_child(bag: Path, topics: dict[str, str], speed: float) -> tuple[int
     if child.returncode != 0:
         raise RuntimeError(f"the player process exited with status {child.returncode}")
     played = json.loads(out.strip().splitlines()[-1])
-    return int(played["frames"]), float(played["duration_s"])
+    offset = played.get("offset_ns")
+    return int(played["frames"]), float(played["duration_s"]), None if offset is None else int(offset)
 
 
 def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: float, settle_s: float,
@@ -208,10 +232,14 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
         lock = threading.Lock()
 
         def on_bodies(msg: Any) -> None:
+            received = time.time_ns()
             doc = json.loads(msg.data)
             stamp = doc["stamp"]["sec"] * 1_000_000_000 + doc["stamp"]["nanosec"]
+            joints = {int(b["id"]): np.array([b["joints3d"][name] for name in COCO17_NAMES], np.float64)
+                      for b in doc["bodies"]}
             with lock:
-                result.bodies.append((stamp, time.time_ns(), len(doc["bodies"])))
+                result.bodies.append((stamp, received, len(doc["bodies"])))
+                result.joints[stamp] = joints
 
         def on_diagnostics(msg: Any) -> None:
             for status in msg.status:
@@ -229,9 +257,9 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
         spinner.start()
         if player is not None:
             time.sleep(1.0)  # discovery
-            result.frames_played, result.duration_s = player.play(bag, speed, threading.Event())
+            result.frames_played, result.duration_s, result.offset_ns = player.play(bag, speed, threading.Event())
         else:
-            result.frames_played, result.duration_s = _play_in_child(bag, topics, speed)
+            result.frames_played, result.duration_s, result.offset_ns = _play_in_child(bag, topics, speed)
         time.sleep(settle_s)  # the last frame's fit and one diagnostics period
     finally:
         if executor is not None:
@@ -240,7 +268,43 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
             if n is not None:
                 n.destroy_node()
         rclpy.try_shutdown()
+    result.accuracy = live_accuracy(bag, result)
     return result
+
+
+def live_accuracy(bag: Path, result: LiveResult) -> LiveAccuracy | None:
+    """The published bodies of `result` against the bag's ground truth (None without any): each document's
+    stamp less the player's offset is a frame of the bag; its people are matched by id."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    from smplify3d_ros.eval.truth import GROUND_TRUTH_TOPIC, parse_truth_document
+
+    if result.offset_ns is None or not result.joints:
+        return None
+    wanted = {stamp - result.offset_ns: joints for stamp, joints in result.joints.items()}
+    frames = people = missed = 0
+    error_sum = 0.0
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as reader:
+        conns = [c for c in reader.connections if c.topic == GROUND_TRUTH_TOPIC]
+        for conn, _, raw in reader.messages(connections=conns):
+            truth = parse_truth_document(typestore.deserialize_cdr(raw, conn.msgtype).data)
+            fitted = wanted.get(truth.stamp_ns)
+            if fitted is None:
+                continue
+            frames += 1
+            for body in truth.bodies:
+                if body.keypoints3d is None or body.detected is False:
+                    continue
+                if body.person_id not in fitted:
+                    missed += 1
+                    continue
+                people += 1
+                error_sum += float(np.linalg.norm(fitted[body.person_id] - body.keypoints3d, axis=1).mean())
+    if frames == 0:
+        return None
+    return LiveAccuracy(frames, people, missed, 1000.0 * error_sum / people if people else float("nan"))
 
 
 def _parameter(text: str) -> tuple[str, Any]:
@@ -292,6 +356,7 @@ def run(args: argparse.Namespace) -> int:
             "rate_hz": len(result.bodies) / result.duration_s if result.duration_s else None,
             "latency_ms_median": float(np.median(lat)) if len(lat) else None,
             "latency_ms_p95": float(np.percentile(lat, 95)) if len(lat) else None,
+            "accuracy": None if result.accuracy is None else dataclasses.asdict(result.accuracy),
             "diagnostics": result.diagnostics,
         }, indent=1))
     return 0 if result.bodies else 1
