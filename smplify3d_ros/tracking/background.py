@@ -122,9 +122,13 @@ def _serve(conn: Connection) -> None:
         except (EOFError, OSError):
             return
         try:
-            conn.send((job, fitter.fit(people, K, origin, options)))
+            answer = fitter.fit(people, K, origin, options)
         except Exception as e:  # noqa: BLE001 - one job's failure goes back as text; the process serves on
-            conn.send((job, f"{type(e).__name__}: {e}"))
+            answer = f"{type(e).__name__}: {e}"
+        try:
+            conn.send((job, answer))
+        except OSError:  # the frame path closed its end (its run ended) while this job ran
+            return
 
 
 if __name__ == "__main__":
