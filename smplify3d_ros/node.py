@@ -274,6 +274,7 @@ class Smplify3dNode(Node):
             f"device {self.config.fitting.device}; loading the body model")
         self.processor = MessageProcessor(self.config, node_cfg, self.factory, fitter=fitter,
                                           transforms=self._transforms(), log=self.get_logger())
+        self.processor.frames.start_background()  # the refreshes' process loads its model while we set up
         self._output_pubs = {
             name: self.create_publisher(self.factory.message_class(OUTPUT_TYPES[name]), f"~/{name}", 10)
             for name in OUTPUTS if getattr(node_cfg.publish, name)
@@ -292,9 +293,10 @@ class Smplify3dNode(Node):
         self._inputs: list[tuple[str, str]] = []  # (name, topic)
         self._logs = LogLimiter(self.get_logger())
         self.qos_incompatible: Counter = Counter()  # publishers per input whose QoS cannot match ours
+        # ready before any frame, and before the inputs are subscribed: their rates count from then on
+        self.processor.frames.start_background(wait=True)
         self._subscribe()
         self._start_extrinsic_tf()
-        self.processor.frames.start_background(wait=True)  # the refreshes' process, ready before any frame
         freeze_startup_heap()  # the body model and torch out of the collector's walks (runtime/heap.py)
         self._worker = threading.Thread(target=self._work, name="smplify3d_fitting", daemon=True)
         self._worker.start()

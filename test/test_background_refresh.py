@@ -129,3 +129,10 @@ def test_the_helper_process_fits_as_the_fitter_in_this_process(anny_model):
     assert not background.alive and background._proc.returncode == 0
     np.testing.assert_allclose(there.vertices, here.vertices, atol=1e-6)
     assert there.person_id == 0 and there.flags == here.flags
+
+
+def test_the_helper_process_closed_before_it_is_ready_ends_quietly():
+    """A run that ends while the process still loads its model (a short bag): no traceback, exit 0."""
+    background = BackgroundFitter(load_config().fitting)
+    background.close()
+    assert not background.alive and background._proc.returncode == 0

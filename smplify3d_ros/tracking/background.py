@@ -114,8 +114,11 @@ class BackgroundFitter:
 def _serve(conn: Connection) -> None:
     from smplify3d_ros.fitting.fitter import Fitter
 
-    fitter = Fitter(conn.recv())
-    conn.send(READY)
+    try:
+        fitter = Fitter(conn.recv())
+        conn.send(READY)
+    except (EOFError, OSError):  # the frame path closed its end (its run ended) before this was ready
+        return
     while True:
         try:
             job, people, K, origin, options = conn.recv()
