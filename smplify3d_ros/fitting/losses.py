@@ -145,18 +145,22 @@ def chamfer_loss(
     points: torch.Tensor,
     point_mask: torch.Tensor,
     vertex_weight: float = 1.0,
+    indices: tuple[torch.Tensor, torch.Tensor | None] | None = None,
 ) -> torch.Tensor:
     """L_3D (Eq. 7): w (1/n) Σ_v min_p ||v − p||² + (1/m) Σ_p min_v ||p − v||², in m²; w = 1 is Eq. 7.
 
     vertices (B, n, 3) with (B, n) mask of the visible ones; points (B, m, 3) with (B, m) mask. A person
     with no valid vertex or point gets 0. `vertex_weight` < 1 discounts the vertex-to-point half, which is
     biased for a scanning LiDAR: its points lie on rings (17 cm apart at 5 m for a VLP-16), and pulling
-    every visible vertex onto the nearest ring squashes the body between them.
+    every visible vertex onto the nearest ring squashes the body between them. `indices`: `nearest_indices`
+    of these arguments (the second None without the vertex half), when already found.
     """
     has = vertex_mask.any(-1) & point_mask.any(-1)
     if vertices.shape[1] == 0 or points.shape[1] == 0:
         return vertices.new_zeros(vertices.shape[0])
-    p_index, v_index = nearest_indices(points, vertices, vertex_mask, point_mask if vertex_weight > 0 else None)
+    if indices is None:
+        indices = nearest_indices(points, vertices, vertex_mask, point_mask if vertex_weight > 0 else None)
+    p_index, v_index = indices
     n = vertex_mask.sum(-1).clamp(min=1)
     m = point_mask.sum(-1).clamp(min=1)
     loss = (gathered_sq_distances(points, vertices, p_index) * point_mask).sum(-1) / m

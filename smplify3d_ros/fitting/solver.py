@@ -92,6 +92,15 @@ class Linearized:
     rows: Callable[[torch.Tensor], torch.Tensor] | None  # (B, r) positions in `vertices` -> (B, r, 3, P63)
     shape_rows: Callable[[torch.Tensor], torch.Tensor] | None  # (B, r) -> (B, r, 3, S); None: shape fixed
     translation_only: bool
+    _nearest: tuple | None = None  # `nearest`'s result, found once per linearization
+
+    def nearest(self, problem, both: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """`losses.nearest_indices` of the problem's points and these vertices (and back, with `both`):
+        the stage loss of a candidate and the normal equations at it share them."""
+        if self._nearest is None or (both and self._nearest[1] is None):
+            self._nearest = losses.nearest_indices(problem.points, self.vertices, problem.vertex_mask,
+                                                   problem.point_mask if both else None)
+        return self._nearest if both else (self._nearest[0], None)
 
     def vertex_jacobian(self, rows: torch.Tensor, layout: Layout) -> torch.Tensor:
         """(B, r) positions in `vertices` -> (B, r, 3, P)."""
@@ -217,7 +226,7 @@ def chamfer_block(body: Linearized, problem, stage, profile: OptimizerProfile, l
     visible = body.vertices
     has = (vmask.any(-1) & pmask.any(-1)).to(weight.dtype)
     want_back = profile.chamfer_vertex_weight > 0
-    p_index, v_index = losses.nearest_indices(points, visible, vmask, pmask if want_back else None)
+    p_index, v_index = body.nearest(problem, want_back)
     m = pmask.sum(-1).clamp(min=1).to(weight.dtype)
     scale = ((weight * has / m).sqrt()[:, None] * pmask)[..., None]  # (B, m, 1)
     r = scale * (torch.gather(visible, 1, p_index[..., None].expand(-1, -1, 3)) - points)

