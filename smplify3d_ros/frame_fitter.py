@@ -36,6 +36,7 @@ from smplify3d_ros.types import (
     FLAG_DIVERGED,
     FLAG_EXTERNAL_INIT,
     FLAG_IMAGE_ONLY,
+    FLAG_LOST,
     FLAG_WARM_START,
     BodyFit,
     BodyParams,
@@ -66,13 +67,15 @@ class FrameFits:
 
 @dataclass
 class _PendingRefresh:
-    """A refresh's cold fit running in the background (`tracking.refresh_background`)."""
+    """A refresh's cold fit running in the background (`tracking.refresh_background`), or a lost warm fit's
+    (`tracking.lost_background`)."""
 
     job: int  # BackgroundFitter job
     index: int  # the person's place in that job's batch
     track: Track  # the track it was started for (a returning id's new track does not take it)
     frames: int  # the track's `frames` when it started (its frame not yet counted)
     warm: BodyFit  # the warm fit of that frame, which the cold fit must beat
+    lost: bool = False  # a lost warm fit's cold refit (or a refresh whose person's warm fit was lost since)
 
 
 def _box_area(uv: np.ndarray) -> float:
@@ -254,6 +257,7 @@ class FrameFitter:
                       if p.init is None and not self._regained(p)}
         warm = [i for i, start in warm_start.items() if start is not None]
         warm_fits: dict[int, BodyFit] = {}
+        lost_fits: dict[int, BodyFit] = {}
         if warm:
             warm_people = [replace(people[i], init=warm_start[i].params, init_vertices=warm_start[i].vertices,
                                    predicted_pelvis=warm_start[i].pelvis) for i in warm]
@@ -262,8 +266,8 @@ class FrameFitter:
             warm_results = self.warm_fitter.fit(warm_people, K, observed.lidar_origin, warm_options)
             latency["warm_fit_per_person"] = (time.perf_counter() - t) / len(warm_people)
             for i, fit in zip(warm, warm_results, strict=True):
-                if not self._lost(fit, people[i], K):
-                    warm_fits[i] = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
+                fit = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
+                (lost_fits if self._lost(fit, people[i], K) else warm_fits)[i] = fit
         refresh = self._refreshes_due([i for i in warm_fits if people[i].person_id not in self._pending], people)
         for i in refresh:
             track = tracker.track(people[i].person_id)
@@ -274,51 +278,66 @@ class FrameFitter:
             self._start_background_refreshes(sorted(inline), people, warm_start, warm_fits, K,
                                              observed.lidar_origin, options)
             inline = set()
-        cold = [i for i in range(len(people)) if i not in warm_fits or i in inline]
-        fits = dict(warm_fits)
+        deferred: set[int] = set()  # lost warm fits output as they are, their cold refits in the background
+        if self.refreshes_in_background and self.config.tracking.lost_background:
+            running = {i for i in lost_fits if people[i].person_id in self._pending}  # a refresh's cold fit will do
+            for i in running:
+                self._pending[people[i].person_id].lost = True
+            deferred = running | self._start_background_refreshes(
+                sorted(set(lost_fits) - running), people, warm_start, lost_fits, K, observed.lidar_origin, options,
+                lost=True)
+        fits = {**warm_fits, **{i: replace(lost_fits[i], flags=lost_fits[i].flags | {FLAG_LOST}) for i in deferred}}
+        cold = [i for i in range(len(people)) if i not in fits or i in inline]
         if cold:
             cold_people = [self._cold_start(people[i], warm_start.get(i), i in refresh) for i in cold]
             for i, fit in zip(cold, self.fitter.fit(cold_people, K, observed.lidar_origin, options), strict=True):
                 if i not in warm_fits or self._better(fit, warm_fits[i]):
                     fits[i] = fit
         refreshed = sum(fits[i] is not warm_fits[i] for i in refresh)
-        lost = len(warm) - len(warm_fits)
+        lost = len(lost_fits)
         tracker.stats.fits.update({"warm": len(warm_fits) - refreshed, "lost": lost, "refresh": len(refresh),
                                    "refresh_settled": len(settled), "refreshed": refreshed,
                                    "refresh_background": len(refresh) - len(settled) - len(inline),
-                                   "cold": len(cold) - len(inline) - lost})
+                                   "lost_background": len(deferred),
+                                   "cold": len(cold) - len(inline) - (lost - len(deferred))})
         pose = self.fitter.model.posed if isinstance(self.fitter, Fitter) else None  # stand-ins: unsmoothed
         return tracker.update([fits[i] for i in range(len(people))], people, stamp, pose)
 
     def _start_background_refreshes(self, refresh: list[int], people: list[PersonObservation],
                                     warm_start: dict[int, WarmStart | None], warm_fits: dict[int, BodyFit],
-                                    K: np.ndarray, lidar_origin: np.ndarray, options: FitOptions | None) -> None:
-        """Send the refreshes' cold fits (one batch) to the helper process."""
+                                    K: np.ndarray, lidar_origin: np.ndarray, options: FitOptions | None,
+                                    lost: bool = False) -> set[int]:
+        """Send the refreshes' cold fits (one batch) to the helper process, or with `lost` the cold refits of
+        lost warm fits (`warm_fits` then holds those); returns the people sent."""
         if not refresh:
-            return
+            return set()
         self.start_background()
-        batch = [self._cold_start(people[i], warm_start.get(i), True) for i in refresh]
+        batch = [self._cold_start(people[i], warm_start.get(i), not lost) for i in refresh]
         try:
             job = self._background.submit(batch, K, lidar_origin, options)
         except BackgroundError:
             self._background_failed = True  # from now on inline; this frame's refreshes are skipped
             self.tracker.stats.fits["refresh_failed"] += len(refresh)
-            return
+            return set()
         for k, i in enumerate(refresh):
             track = self.tracker.track(people[i].person_id)
-            self._pending[people[i].person_id] = _PendingRefresh(job, k, track, track.frames, warm_fits[i])
+            self._pending[people[i].person_id] = _PendingRefresh(job, k, track, track.frames, warm_fits[i], lost)
+        return set(refresh)
 
     def _take_background_refreshes(self, people: list[PersonObservation]) -> None:
         """The background refreshes due in this frame: those `tracking.refresh_apply_frames` fitted frames
         of their track past the frame they started on (waiting for them if need be, so that the node and
         the replay take each at the same frame). A cold fit clearly better than its frame's warm fit
         (`_better`) becomes the track's last fit, the start of this frame's warm solve; a track that was
-        refitted cold since, or ended, does not take it."""
+        refitted cold since, or ended, does not take it. A lost fit's cold refit is due after
+        `tracking.lost_apply_frames` and is taken while the track's last fit is still lost, or clearly
+        worse than it."""
         cfg = self.config.tracking
         for pid in [p.person_id for p in people if p.person_id in self._pending]:
             pending = self._pending[pid]
             track = self.tracker.track(pid)
-            if track is pending.track and track.frames - pending.frames <= cfg.refresh_apply_frames:
+            wait = cfg.lost_apply_frames if pending.lost else cfg.refresh_apply_frames
+            if track is pending.track and track.frames - pending.frames <= wait:
                 continue
             del self._pending[pid]
             try:
@@ -330,8 +349,13 @@ class FrameFitter:
                 self.tracker.stats.fits["refresh_failed"] += 1
                 self.close()
                 return
-            if track is pending.track and track.last_fit is not None and FLAG_WARM_START in track.last_fit.flags \
-                    and self._better(cold, pending.warm):
+            last = track.last_fit if track is pending.track else None
+            if last is None or FLAG_WARM_START not in last.flags:
+                continue
+            if pending.lost and (FLAG_LOST in last.flags or self._better(cold, last)):
+                track.last_fit = cold
+                self.tracker.stats.fits["lost_refitted"] += 1
+            elif not pending.lost and self._better(cold, pending.warm):
                 track.last_fit = cold
                 self.tracker.stats.fits["refreshed"] += 1
         waiting = {p.job for p in self._pending.values()}

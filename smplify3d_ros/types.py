@@ -113,6 +113,7 @@ FLAG_EXTERNAL_INIT = "external_init"  # initialized from an upstream estimate
 FLAG_FEW_KEYPOINTS = "few_keypoints"  # too few confident keypoints for a reliable image term
 FLAG_WARM_START = "warm_start"  # a tracked person, fitted from their previous fit with the short warm solve
 FLAG_POINTS_TOO_NEAR = "points_too_near"  # the person's points lay far nearer than their image size allows: dropped
+FLAG_LOST = "lost"  # a warm fit that lost its person, output while its cold refit runs (tracking.lost_background)
 FLAG_LIDAR_MISMATCH = "lidar_mismatch"  # the fit missed its points (points_to_mesh_m above fitting.lidar_mismatch_m)
 
 

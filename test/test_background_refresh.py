@@ -92,6 +92,76 @@ def test_a_background_refresh_no_better_than_its_warm_fit_is_not_taken():
     assert "warm_start" in path.tracker.track(4).last_fit.flags
 
 
+class LosesFrame2(StubFitter):
+    """Warm fits, the `lost_call`-th of which (frame 2 by default) diverged: it lost its person."""
+
+    def __init__(self, lost_call: int = 2) -> None:
+        super().__init__()
+        self.lost_call = lost_call
+
+    def fit(self, people, K, origin, options=None):
+        fits = super().fit(people, K, origin, options)
+        if len(self.calls) == self.lost_call:
+            fits = [dataclasses.replace(f, flags=set(f.flags) | {"diverged"}) for f in fits]
+        return fits
+
+
+@pytest.mark.parametrize("apply_frames", [0, 1])
+def test_a_lost_warm_fit_is_output_flagged_and_refitted_cold_in_the_background(apply_frames):
+    cold, warm = StubFitter(), LosesFrame2()
+    background = InProcessBackground(BetterColdFits())
+    core = load_config(overrides={"tracking": {"refresh_frames": 0, "lost_background": True,
+                                               "lost_apply_frames": apply_frames}})
+    path = FrameFitter(core, fitter=cold, tracker=Tracker(core.tracking), warm_fitter=warm, background=background)
+    outputs = []
+    for k in range(6):
+        frame = SimpleNamespace(stamp_ns=k * NS, camera=SimpleNamespace(K=np.eye(3)))
+        people = path.tracker.assign([observation(4, 0.1 * k)], frame.stamp_ns)
+        outputs.append(path.fit_observed(FrameFits(frame, people, [], np.zeros(3))).fits[0])
+    # frame 0: new track, cold inline; frame 2's warm fit is lost: output flagged, its cold refit (no
+    # refresh hypothesis) sent to the background and taken before the warm solve `apply_frames` fitted
+    # frames later, which starts from it; the frames between start from the lost fit
+    assert len(cold.calls) == 1 and len(warm.calls) == 5
+    assert "lost" in outputs[2].flags and "warm_start" in outputs[2].flags
+    assert not any("lost" in f.flags for k, f in enumerate(outputs) if k != 2)
+    assert len(background.jobs) == 1 and background.taken == [0]
+    assert background.jobs[0][0].hypothesis is None and background.jobs[0][0].predicted_pelvis is not None
+    taken_at = 3 + apply_frames
+    warm_poses = [float(call[0].init.pose.mean()) for call in warm.calls]  # frames 1-5
+    assert warm_poses == [0.3 if k >= taken_at else 0.0 for k in range(1, 6)], warm_poses
+    fits = path.tracker.stats.fits
+    assert fits["lost"] == 1 and fits["lost_background"] == 1 and fits["lost_refitted"] == 1
+    assert fits["cold"] == 1
+
+
+def test_a_warm_fit_lost_while_its_refresh_runs_takes_the_refresh_instead_of_a_new_cold_fit():
+    cold, warm = StubFitter(), LosesFrame2(lost_call=4)
+    background = InProcessBackground(BetterColdFits())
+    core = load_config(overrides={"tracking": {"refresh_frames": 3, "refresh_apply_frames": 3,
+                                               "lost_background": True, "lost_apply_frames": 0}})
+    path = FrameFitter(core, fitter=cold, tracker=Tracker(core.tracking), warm_fitter=warm, background=background)
+    _run(path, 7)
+    # frame 3: refresh sent; frame 4's warm fit is lost: no cold fit of its own, the refresh is taken
+    # before frame 5's warm solve (lost_apply_frames after it started, not refresh_apply_frames); frame 6
+    # sends the next refresh
+    assert len(cold.calls) == 1 and len(background.jobs) == 2 and background.taken == [0]
+    warm_poses = [float(call[0].init.pose.mean()) for call in warm.calls]  # frames 1-6
+    assert warm_poses == [0.0, 0.0, 0.0, 0.0, 0.3, 0.3], warm_poses
+    fits = path.tracker.stats.fits
+    assert fits["lost"] == 1 and fits["lost_background"] == 1 and fits["lost_refitted"] == 1
+    assert fits["refreshed"] == 0
+
+
+def test_a_lost_warm_fit_is_refitted_inline_without_lost_background():
+    cold, warm = StubFitter(), LosesFrame2()
+    core = load_config(overrides={"tracking": {"refresh_frames": 0}})
+    background = InProcessBackground(BetterColdFits())
+    path = FrameFitter(core, fitter=cold, tracker=Tracker(core.tracking), warm_fitter=warm, background=background)
+    _run(path, 4)
+    assert len(cold.calls) == 2 and background.jobs == []  # frame 0 and frame 2's lost fit
+    assert path.tracker.stats.fits["lost"] == 1 and path.tracker.stats.fits["lost_background"] == 0
+
+
 def test_a_failed_background_process_leaves_the_refreshes_inline():
     cold, warm = StubFitter(), StubFitter()
     background = InProcessBackground(BetterColdFits())

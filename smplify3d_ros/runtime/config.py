@@ -246,7 +246,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "tracking.extraction_gate_m": (0, _INF), "tracking.refresh_frames": (0, _INF),
     "tracking.refresh_margin": (0, 1), "tracking.refresh_max_people": (0, _INF),
     "tracking.refresh_apply_frames": (0, _INF), "tracking.refresh_timeout_s": (0, _INF),
-    "tracking.refresh_nice": (0, 19),
+    "tracking.refresh_nice": (0, 19), "tracking.lost_apply_frames": (0, _INF),
     "tracking.max_unseen_s": (0, _INF), "tracking.shape_frames": (1, _INF), "tracking.shape_rate": (0, 1),
     "tracking.pose_smoothing": (0, 1),
     "tracking.accel_sigma_mps2": (0, _INF), "tracking.position_sigma_m": (0, _INF),

@@ -35,6 +35,8 @@ class TrackingConfig:
     refresh_nice: int  # scheduling niceness of the helper process (0-19: higher yields the CPU sooner)
     lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of the person's image height) is lost
     lost_chamfer_m: float  # ... or whose mesh is farther than this from its points
+    lost_background: bool  # a lost warm fit is output (flagged) while its cold refit runs in the helper process
+    lost_apply_frames: int  # ... which becomes the track's last fit this many fitted frames later (waited for)
 
     def __post_init__(self) -> None:
         require(self.gate_m > 0 and self.gate_speed_mps >= 0, "gate_m must be > 0, gate_speed_mps >= 0")
@@ -46,6 +48,7 @@ class TrackingConfig:
         require(self.refresh_max_people >= 0, "refresh_max_people must be >= 0 (0: no limit)")
         require(0.0 < self.refresh_margin <= 1.0, "refresh_margin must be in (0, 1]")
         require(self.refresh_apply_frames >= 0, "refresh_apply_frames must be >= 0")
+        require(self.lost_apply_frames >= 0, "lost_apply_frames must be >= 0")
         require(self.refresh_timeout_s > 0, "refresh_timeout_s must be > 0")
         require(0 <= self.refresh_nice <= 19, "refresh_nice must be in [0, 19]")
         require(0.0 < self.pose_smoothing <= 1.0, "pose_smoothing must be in (0, 1]")
