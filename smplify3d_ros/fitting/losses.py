@@ -203,6 +203,18 @@ def motion_hold_residuals(transl: torch.Tensor, predicted: torch.Tensor, weight:
     return weight**0.5 * torch.where(valid, transl - torch.nan_to_num(predicted), torch.zeros_like(transl))
 
 
+def joint_motion_residuals(keypoints: torch.Tensor, predicted: torch.Tensor, weight: float) -> torch.Tensor:
+    """(B, K, 3) √(w / n) · (J_k − J_k,pred), n the person's keypoints with a prediction, zero for the others
+    (NaN rows): the squares sum to w · mean_k |J_k − J_k,pred|², in m². A tracked person's joints move
+    on smoothly from frame to frame; a fit whose limbs jump by what the image and a few dozen points
+    cannot tell apart (how deep a forearm is, where a foot is in its swing) is the rest of a per-frame
+    fit's jitter. keypoints, predicted: (B, K, 3) camera frame."""
+    valid = torch.isfinite(predicted).all(-1, keepdim=True)  # (B, K, 1)
+    n = valid.sum(1, keepdim=True).clamp(min=1).to(keypoints.dtype)  # (B, 1, 1)
+    diff = torch.where(valid, keypoints - torch.nan_to_num(predicted), torch.zeros_like(keypoints))
+    return (weight / n).sqrt() * diff
+
+
 def depth_hold_residuals(transl: torch.Tensor, init_transl: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     """(B,) √w · (z − z₀) / z₀, `weight` (B,) per person (0 for people with L_3D): without enough points
     for L_3D, the image's scale gives the depth only through the assumed body size, no better than the
