@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 from smplify3d_ros.settings import require
-
-JOINT_PREDICTIONS = ("constant_velocity", "filtered", "last_pose")
 
 
 @dataclass(frozen=True)
@@ -27,7 +26,8 @@ class TrackingConfig:
     warm_start: bool  # fit tracked people from their predicted last fit with the short warm solve
     warm_profile: str  # the fitting.profiles entry of the warm solve
     warm_icp: bool  # the rigid LiDAR alignment before a warm solve (the prediction is usually close already)
-    joint_prediction: str  # where the warm solve's joint motion hold expects the joints (`Tracker.predicted_joints`)
+    # where the warm solve's joint motion hold expects the joints (`Tracker.predicted_joints`)
+    joint_prediction: Literal["constant_velocity", "filtered", "last_pose"]
     refresh_frames: int  # every n-th frame of a track: the cold start, the warm start one of its hypotheses (0: never)
     refresh_max_people: int  # people refreshed in one frame at most, the longest unrefreshed first (0: no limit)
     refresh_margin: float  # a refresh's cold fit replaces the warm fit when its final loss is below this fraction
@@ -40,8 +40,6 @@ class TrackingConfig:
     lost_chamfer_m: float  # ... or whose mesh is farther than this from its points
 
     def __post_init__(self) -> None:
-        require(self.joint_prediction in JOINT_PREDICTIONS,
-                f"joint_prediction must be one of {', '.join(JOINT_PREDICTIONS)}")
         require(self.gate_m > 0 and self.gate_speed_mps >= 0, "gate_m must be > 0, gate_speed_mps >= 0")
         require(self.extraction_gate_m >= 0, "extraction_gate_m must be >= 0 (0: no gate)")
         require(self.iou_weight >= 0, "iou_weight must be >= 0")
