@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 import torch
 
 from smplify3d_ros.config import load_config
@@ -47,11 +48,13 @@ def _keypoints(model, state) -> torch.Tensor:
 MESH = StageSpec("mesh", ("pose", "root_orient", "transl"), 10, None, 100.0, 600.0, priors=True)
 
 
-def test_the_block_is_the_stage_losss_term(anny_model):
+@pytest.mark.parametrize("relative", [False, True])
+def test_the_block_is_the_stage_losss_term(anny_model, relative):
     """Jᵀr of the LM block is half the gradient of the stage loss's joint term, in every column the
-    keypoints depend on (pose, root, translation); NaN joints add nothing."""
+    keypoints depend on (pose, root, translation), held where the joints are or about their hip midpoint
+    (`joint_motion_relative`); NaN joints add nothing."""
     fitter, problem, start, _ = _setup(anny_model, 300.0)
-    profile = fitter.config.optimizer
+    profile = dataclasses.replace(fitter.config.optimizer, joint_motion_relative=relative)
     offset = 0.05 * torch.randn(1, 17, 3, generator=torch.Generator().manual_seed(0), dtype=start.pose.dtype)
     predicted = _keypoints(anny_model, start) + offset
     predicted[:, 3] = float("nan")  # one joint without a prediction
@@ -70,6 +73,9 @@ def test_the_block_is_the_stage_losss_term(anny_model):
     J3 = 3 * layout.joints
     assert torch.allclose(acc.Jtr[0, : J3 + 6], 0.5 * gradient, rtol=1e-3, atol=1e-3 * float(gradient.abs().max()))
     assert float(acc.Jtr.abs().sum()) > 0
+    if relative:  # a rigid shift of the body changes nothing
+        assert float(acc.Jtr[0, J3 + 3 : J3 + 6].abs().max()) < 1e-6 * float(acc.Jtr.abs().max())
+        return
     # the residuals' squares are the term itself: w · the mean over the predicted joints
     r = losses.joint_motion_residuals(body.keypoints, predicted, 300.0**2)
     expected = 300.0**2 * ((body.keypoints - predicted)[:, [k for k in range(17) if k != 3]] ** 2).sum(-1).mean()

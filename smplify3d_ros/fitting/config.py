@@ -166,6 +166,7 @@ class OptimizerProfile:
     weights: LossWeights
     lm_damping: float
     pixel_reference_px: float
+    joint_motion_relative: bool  # the joint motion hold on the joints about their hip midpoint (False: where they are)
 
     def __post_init__(self) -> None:
         require(self.lr > 0, "lr must be > 0")

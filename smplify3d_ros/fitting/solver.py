@@ -474,10 +474,13 @@ def joint_motion_block(body: Linearized, problem, stage, profile: OptimizerProfi
     weight = _w(profile.weights.joint_motion, profile)
     if weight <= 0 or not holds_joints(problem, stage):
         return
-    r = losses.joint_motion_residuals(body.keypoints, problem.predicted_keypoints, weight)  # (B, K, 3)
-    valid = torch.isfinite(problem.predicted_keypoints).all(-1).to(r.dtype)  # (B, K)
+    relative = profile.joint_motion_relative
+    predicted = losses.root_relative(problem.predicted_keypoints) if relative else problem.predicted_keypoints
+    r = losses.joint_motion_residuals(body.keypoints, problem.predicted_keypoints, weight, relative)  # (B, K, 3)
+    valid = torch.isfinite(predicted).all(-1).to(r.dtype)  # (B, K)
     scale = (weight / valid.sum(-1).clamp(min=1)).sqrt()[:, None] * valid  # (B, K)
-    J = scale[..., None, None] * body.d_keypoints  # (B, K, 3, P)
+    d_keypoints = losses.root_relative(body.d_keypoints) if relative else body.d_keypoints
+    J = scale[..., None, None] * d_keypoints  # (B, K, 3, P)
     acc.add(r.flatten(1), J.flatten(1, 2))
 
 

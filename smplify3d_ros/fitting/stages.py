@@ -134,7 +134,8 @@ def joint_motion_loss(keypoints: torch.Tensor, problem: FitProblem, stage: Stage
     weight = _w(profile.weights.joint_motion, profile)
     if weight <= 0 or not solver.holds_joints(problem, stage):
         return 0.0
-    return (losses.joint_motion_residuals(keypoints, problem.predicted_keypoints, weight) ** 2).sum((-1, -2))
+    return (losses.joint_motion_residuals(keypoints, problem.predicted_keypoints, weight,
+                                          profile.joint_motion_relative) ** 2).sum((-1, -2))
 
 
 def run_stage(
