@@ -260,7 +260,8 @@ class FrameFitter:
         lost_fits: dict[int, BodyFit] = {}
         if warm:
             warm_people = [replace(people[i], init=warm_start[i].params, init_vertices=warm_start[i].vertices,
-                                   predicted_pelvis=warm_start[i].pelvis) for i in warm]
+                                   predicted_pelvis=warm_start[i].pelvis,
+                                   predicted_keypoints=warm_start[i].keypoints) for i in warm]
             warm_options = replace(options or FitOptions(), use_icp=self.config.tracking.warm_icp)
             t = time.perf_counter()
             warm_results = self.warm_fitter.fit(warm_people, K, observed.lidar_origin, warm_options)

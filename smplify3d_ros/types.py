@@ -89,6 +89,10 @@ class PersonObservation:
     # prediction. A start placed there (`init`: a warm start) is held there by the profile's
     # `weights.motion`; a built-in start without points for the depth takes the depth from it
     predicted_pelvis: np.ndarray | None = None
+    # (17, 3) float64 where a tracker predicts this person's keypoint joints now (camera frame, m; NaN rows:
+    # none), None: no prediction. A warm start (`init` at `predicted_pelvis`) is held near them by the
+    # profile's `weights.joint_motion`
+    predicted_keypoints: np.ndarray | None = None
 
 
 @dataclass

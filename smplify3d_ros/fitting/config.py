@@ -134,10 +134,15 @@ class LossWeights:
     # holds the translation where an initial estimate that carries a prediction put it (a tracked person's
     # warm start: the motion filter's), per metre (w² · |t − t_pred|²); 0: free
     motion: float
+    # holds the body's keypoint joints (3D, camera frame) where a prediction put them (a tracked person's
+    # warm start: each joint moved on at its velocity over the last two fits), per metre, on their mean
+    # (w² · mean_k |J_k − J_k,pred|²); 0: free
+    joint_motion: float
 
     def __post_init__(self) -> None:
         for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "chamfer_scale", "occlusion",
-                     "init_pose", "neutral", "upright", "image_depth", "points_depth", "motion"):
+                     "init_pose", "neutral", "upright", "image_depth", "points_depth", "motion",
+                     "joint_motion"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(self.sigma_px > 0 and self.sigma_px_final > 0, "sigma_px values must be > 0")
 
@@ -161,6 +166,7 @@ class OptimizerProfile:
     weights: LossWeights
     lm_damping: float
     pixel_reference_px: float
+    joint_motion_relative: bool  # the joint motion hold on the joints about their hip midpoint (False: where they are)
 
     def __post_init__(self) -> None:
         require(self.lr > 0, "lr must be > 0")

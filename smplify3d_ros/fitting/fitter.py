@@ -464,6 +464,7 @@ class Fitter:
             keypoint_depth=None if batch.keypoint_depth is None else torch.as_tensor(
                 batch.keypoint_depth, dtype=self.dtype, device=dev),
             predicted_transl=self._predicted_transl(batch),
+            predicted_keypoints=self._predicted_keypoints(batch),
         )
 
     def _predicted_transl(self, batch: Batch) -> torch.Tensor | None:
@@ -474,6 +475,19 @@ class Fitter:
             return None
         rows = [np.asarray(p.init.transl, np.float64) if p.predicted_pelvis is not None and p.init is not None
                 and not batch.builtin[i] else np.full(3, np.nan) for i, p in enumerate(batch.people)]
+        if all(np.isnan(r).all() for r in rows):
+            return None
+        return self._tensor(rows)
+
+    def _predicted_keypoints(self, batch: Batch) -> torch.Tensor | None:
+        """(B, 17, 3) the joints the joint motion hold keeps each person near (`predicted_keypoints`), for
+        people with a warm start (`init`, placed at their predicted pelvis) that came with them; NaN rows for
+        the others; None when the profile has no such hold or nobody such a prediction."""
+        if self.config.optimizer.weights.joint_motion <= 0:
+            return None
+        rows = [np.asarray(p.predicted_keypoints, np.float64) if p.predicted_keypoints is not None
+                and p.predicted_pelvis is not None and p.init is not None and not batch.builtin[i]
+                else np.full((17, 3), np.nan) for i, p in enumerate(batch.people)]
         if all(np.isnan(r).all() for r in rows):
             return None
         return self._tensor(rows)

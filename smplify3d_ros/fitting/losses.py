@@ -12,6 +12,8 @@ import roma
 import torch
 from scipy.spatial import cKDTree
 
+from smplify3d_ros.keypoints import HIP_INDICES
+
 _FAR_M = 1e9  # where non-finite coordinates are put for the neighbour search
 
 
@@ -201,6 +203,27 @@ def motion_hold_residuals(transl: torch.Tensor, predicted: torch.Tensor, weight:
     and a few dozen points cannot tell apart is the jitter of a per-frame fit."""
     valid = torch.isfinite(predicted)
     return weight**0.5 * torch.where(valid, transl - torch.nan_to_num(predicted), torch.zeros_like(transl))
+
+
+def joint_motion_residuals(keypoints: torch.Tensor, predicted: torch.Tensor, weight: float,
+                           relative: bool = False) -> torch.Tensor:
+    """(B, K, 3) √(w / n) · (J_k − J_k,pred), n the person's keypoints with a prediction, zero for the others
+    (NaN rows): the squares sum to w · mean_k |J_k − J_k,pred|², in m². A tracked person's joints move
+    on smoothly from frame to frame; a fit whose limbs jump by what the image and a few dozen points
+    cannot tell apart (how deep a forearm is, where a foot is in its swing) is the rest of a per-frame
+    fit's jitter. keypoints, predicted: (B, K, 3) camera frame. `relative`: both about their hip
+    midpoint (the body's place left to the translation's own hold)."""
+    if relative:
+        keypoints, predicted = root_relative(keypoints), root_relative(predicted)
+    valid = torch.isfinite(predicted).all(-1, keepdim=True)  # (B, K, 1)
+    n = valid.sum(1, keepdim=True).clamp(min=1).to(keypoints.dtype)  # (B, 1, 1)
+    diff = torch.where(valid, keypoints - torch.nan_to_num(predicted), torch.zeros_like(keypoints))
+    return (weight / n).sqrt() * diff
+
+
+def root_relative(keypoints: torch.Tensor) -> torch.Tensor:
+    """(B, K, 3) COCO keypoints (or their derivatives, (B, K, 3, P)) less their hip midpoint's."""
+    return keypoints - keypoints[:, list(HIP_INDICES)].mean(1, keepdim=True)
 
 
 def depth_hold_residuals(transl: torch.Tensor, init_transl: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:

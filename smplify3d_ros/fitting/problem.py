@@ -78,6 +78,7 @@ class FitProblem:
     init_transl: torch.Tensor | None = None  # (B, 3) the translation at the start (image-only depth hold)
     depth_measured: torch.Tensor | None = None  # (B,) bool: people without L_3D whose few points gave the depth
     predicted_transl: torch.Tensor | None = None  # (B, 3) the motion hold's translations (NaN rows: none)
+    predicted_keypoints: torch.Tensor | None = None  # (B, 17, 3) the joint motion hold's joints (NaN rows: none)
 
     def __post_init__(self) -> None:
         if self.empty_subset is None:

@@ -421,6 +421,7 @@ def normal_equations(model: BodyModel, state, problem, stage, profile: Optimizer
     keypoint_depth_block(body, problem, stage, profile, acc)
     depth_hold_block(state, problem, stage, profile, layout, acc)
     motion_hold_block(state, problem, stage, profile, layout, acc)
+    joint_motion_block(body, problem, stage, profile, acc)
     prior_block(model, state, problem, stage, profile, layout, acc)
     return acc
 
@@ -460,6 +461,27 @@ def motion_hold_block(state, problem, stage, profile: OptimizerProfile, layout: 
     t0 = 3 * layout.joints + 3  # the translation's columns follow the pose's and the root's
     J[:, :, t0 : t0 + 3] = weight**0.5 * torch.diag_embed(valid)
     acc.add(r, J)
+
+
+def holds_joints(problem, stage) -> bool:
+    """Whether the stage has the joint motion hold: a prediction, and a stage that moves the body."""
+    return problem.predicted_keypoints is not None and any(
+        name in stage.params for name in ("pose", "root_orient", "transl"))
+
+
+def joint_motion_block(body: Linearized, problem, stage, profile: OptimizerProfile, acc: Residuals) -> None:
+    """`losses.joint_motion_residuals`, through the keypoints' Jacobian."""
+    weight = _w(profile.weights.joint_motion, profile)
+    if weight <= 0 or not holds_joints(problem, stage):
+        return
+    relative = profile.joint_motion_relative
+    predicted = losses.root_relative(problem.predicted_keypoints) if relative else problem.predicted_keypoints
+    r = losses.joint_motion_residuals(body.keypoints, problem.predicted_keypoints, weight, relative)  # (B, K, 3)
+    valid = torch.isfinite(predicted).all(-1).to(r.dtype)  # (B, K)
+    scale = (weight / valid.sum(-1).clamp(min=1)).sqrt()[:, None] * valid  # (B, K)
+    d_keypoints = losses.root_relative(body.d_keypoints) if relative else body.d_keypoints
+    J = scale[..., None, None] * d_keypoints  # (B, K, 3, P)
+    acc.add(r.flatten(1), J.flatten(1, 2))
 
 
 def damped_step(acc: Residuals, layout: Layout, damping: torch.Tensor) -> torch.Tensor:

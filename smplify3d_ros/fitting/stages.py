@@ -106,6 +106,7 @@ def stage_loss(
     if hold is not None:
         loss = loss + losses.depth_hold_residuals(state.transl, problem.init_transl, hold) ** 2
     loss = loss + motion_hold_loss(state, problem, stage, profile)
+    loss = loss + joint_motion_loss(out.keypoints, problem, stage, profile)
     if stage.keypoint_depth_weight > 0 and problem.keypoint_depth is not None:
         loss = loss + _w(stage.keypoint_depth_weight, profile) * losses.keypoint_depth_loss(
             out.keypoints, problem.keypoint_depth, stage.keypoint_depth_sigma)
@@ -124,6 +125,17 @@ def motion_hold_loss(state: FitState, problem: FitProblem, stage: StageSpec, pro
         return 0.0
     return (losses.motion_hold_residuals(state.transl, problem.predicted_transl,
                                          _w(profile.weights.motion, profile)) ** 2).sum(-1)
+
+
+def joint_motion_loss(keypoints: torch.Tensor, problem: FitProblem, stage: StageSpec, profile: OptimizerProfile
+                      ) -> torch.Tensor | float:
+    """(B,) the joint motion hold's term of the stage's loss (`weights.joint_motion`) at the bodies'
+    keypoints (B, 17, 3), 0 where it has none."""
+    weight = _w(profile.weights.joint_motion, profile)
+    if weight <= 0 or not solver.holds_joints(problem, stage):
+        return 0.0
+    return (losses.joint_motion_residuals(keypoints, problem.predicted_keypoints, weight,
+                                          profile.joint_motion_relative) ** 2).sum((-1, -2))
 
 
 def run_stage(
@@ -277,10 +289,13 @@ def optimize(
             model, state, problem, stage, profile, divergence_factor, diverged
         )
     if final is not None:
-        # the motion hold is left out: the final loss says how well the body explains this frame, and a
+        # the motion holds are left out: the final loss says how well the body explains this frame, and a
         # tracked person's refresh compares it with a cold fit's, which has no prediction to be held to
         with torch.no_grad():
             final = final - motion_hold_loss(state, problem, plan[-1], profile)
+            if solver.holds_joints(problem, plan[-1]) and profile.weights.joint_motion > 0:
+                keypoints = model(*state.body_args(model), problem.empty_subset).keypoints
+                final = final - joint_motion_loss(keypoints, problem, plan[-1], profile)
     report.final_loss = final
     report.diverged = diverged
     return report

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 from smplify3d_ros.settings import require
 
@@ -25,6 +26,8 @@ class TrackingConfig:
     warm_start: bool  # fit tracked people from their predicted last fit with the short warm solve
     warm_profile: str  # the fitting.profiles entry of the warm solve
     warm_icp: bool  # the rigid LiDAR alignment before a warm solve (the prediction is usually close already)
+    # where the warm solve's joint motion hold expects the joints (`Tracker.predicted_joints`)
+    joint_prediction: Literal["constant_velocity", "filtered", "last_pose"]
     refresh_frames: int  # every n-th frame of a track: the cold start, the warm start one of its hypotheses (0: never)
     refresh_max_people: int  # people refreshed in one frame at most, the longest unrefreshed first (0: no limit)
     refresh_margin: float  # a refresh's cold fit replaces the warm fit when its final loss is below this fraction

@@ -27,7 +27,7 @@ from smplify3d_ros.keypoints import HIP_INDICES
 from smplify3d_ros.tracking.association import associate, box_iou
 from smplify3d_ros.tracking.config import TrackingConfig
 from smplify3d_ros.tracking.motion import MotionFilter
-from smplify3d_ros.types import FLAG_IMAGE_ONLY, BodyFit, BodyParams, PersonObservation
+from smplify3d_ros.types import FLAG_IMAGE_ONLY, FLAG_WARM_START, BodyFit, BodyParams, PersonObservation
 
 _NS = 1e-9
 PoseFunction = Callable[[list[BodyParams]], list[Any]]  # BodyModel.posed: params -> PosedBody geometry
@@ -65,6 +65,9 @@ class Track:
     surface: np.ndarray | None  # (3,) the median of the last points the track's person had, camera frame
     surface_stamp_ns: int  # when those points were measured (frames without points keep the last ones)
     last_fit: BodyFit | None = None  # the last fit as the fitter made it (the next warm start)
+    # the keypoint joints (17, 3) of the fit before `last_fit` and its stamp: the joints' velocity
+    previous_keypoints: np.ndarray | None = None
+    previous_stamp_ns: int = 0
     last_output: BodyFit | None = None  # ... as it was output (smoothed)
     previous_output: BodyFit | None = None  # the output before that (the rotations' rate of change)
     frames: int = 0  # frames fitted
@@ -102,6 +105,7 @@ class WarmStart:
     params: BodyParams  # the last fit moved to the predicted pelvis, with the track's shape
     pelvis: np.ndarray  # (3,) where its hip midpoint now is: the motion filter's prediction
     vertices: np.ndarray | None  # (V, 3) float32 the last fit's mesh moved with it (None: the fit had none)
+    keypoints: np.ndarray | None = None  # (17, 3) where its keypoint joints now are predicted (`predicted_joints`)
 
 
 @dataclass
@@ -179,7 +183,27 @@ class Tracker:
         params = fit.params.copy()
         params.root_orient, params.transl, params.shape = root, transl, shape.copy()
         vertices = None if fit.vertices is None else (fit.vertices + shift).astype(np.float32)
-        return WarmStart(params, target.copy(), vertices)
+        return WarmStart(params, target.copy(), vertices, self.predicted_joints(track, stamp_ns, shift))
+
+    def predicted_joints(self, track: Track, stamp_ns: int, shift: np.ndarray) -> np.ndarray:
+        """(17, 3) where the track's last fit's keypoint joints are predicted at `stamp_ns`
+        (`joint_prediction`): `constant_velocity` moves each on at its velocity between the last two fits
+        (J + (J − J_before) · dt_now / dt_before), `filtered` puts the hip midpoint where the motion filter
+        predicts it and moves the joints about it on at their velocity, `last_pose` moves the last pose by
+        the filter's prediction (`shift`, the warm start's). With one fit, or when the last fit was not a
+        warm fit (a cold one, a refresh: its difference from the one before is no motion), the last pose
+        moved by the filter's prediction."""
+        last = np.asarray(track.last_fit.keypoints3d, np.float64)
+        mode = self.config.joint_prediction
+        before, dt_before = track.previous_keypoints, (track.last_stamp_ns - track.previous_stamp_ns) * _NS
+        if mode == "last_pose" or before is None or dt_before <= 0 or FLAG_WARM_START not in track.last_fit.flags:
+            return last + shift
+        rate = track.age_s(stamp_ns) / dt_before
+        if mode == "filtered":
+            hips = list(HIP_INDICES)
+            relative, relative_before = last - last[hips].mean(0), before - before[hips].mean(0)
+            return last[hips].mean(0) + shift + relative + (relative - relative_before) * rate
+        return last + (last - before) * rate
 
     def expected_depth(self, person_ids: np.ndarray, stamp_ns: int) -> np.ndarray:
         """(P, 2) where the LiDAR should see each detector-tracked person at `stamp_ns`: the depth of their
@@ -222,6 +246,9 @@ class Tracker:
             track = self._track_for(fit, obs, stamp_ns)
             track.motion.update(pelvis(fit), track.age_s(stamp_ns),
                                 self.config.image_depth_sigma_m if FLAG_IMAGE_ONLY in fit.flags else None)
+            if track.last_fit is not None:
+                track.previous_keypoints = np.asarray(track.last_fit.keypoints3d, np.float64)
+                track.previous_stamp_ns = track.last_stamp_ns
             track.last_fit = fit
             if pose is not None and track.last_output is not None:
                 fit = self._smoothed(fit, track, pose)
