@@ -228,7 +228,7 @@ def test_people_tracked_together_are_refreshed_in_turn():
 
 def test_a_warm_fit_that_lost_its_person_falls_back_to_the_cold_start():
     """A warm fit whose keypoints reproject far off (more than `lost_reprojection` of the box height) or
-    whose mesh lies far from its points is thrown away and the person fitted cold, and counted as lost."""
+    whose points lie far from its mesh is thrown away and the person fitted cold, and counted as lost."""
     from types import SimpleNamespace
 
     from node_support import StubFitter
@@ -238,9 +238,9 @@ def test_a_warm_fit_that_lost_its_person_falls_back_to_the_cold_start():
     class LosesThePerson(StubFitter):  # the warm solve: 1 px off, then 80 px (box 200 px tall), then 40 cm
         def fit(self, people, K, origin, options=None):
             fits = super().fit(people, K, origin, options)
-            reprojection, chamfer = ((1.0, 0.01), (80.0, 0.01), (1.0, 0.4))[min(len(self.calls) - 1, 2)]
+            reprojection, off = ((1.0, 0.01), (80.0, 0.01), (1.0, 0.4))[min(len(self.calls) - 1, 2)]
             return [dataclasses.replace(f, quality=dataclasses.replace(f.quality, reprojection_px=reprojection,
-                                                                       chamfer_m=chamfer)) for f in fits]
+                                                                       points_to_mesh_m=off)) for f in fits]
 
     cold, warm = StubFitter(), LosesThePerson()
     core = load_config(overrides={"tracking": {"refresh_frames": 0}})
@@ -313,6 +313,26 @@ def test_a_half_hidden_person_is_lost_by_their_size_in_the_image_not_their_box()
                           obs, K)
     assert path._lost(dataclasses.replace(fit, quality=dataclasses.replace(fit.quality, reprojection_px=20.0)),
                       obs, K)
+
+
+def test_a_sparse_persons_warm_fit_is_not_lost_by_mesh_without_points_near_it():
+    """A far or half-hidden person's points all lie on the warm fit's mesh while most of the visible mesh has
+    no point near it (the symmetric chamfer is large): the fit keeps its person. Points 10 cm off it: lost."""
+    from node_support import StubFitter
+
+    from smplify3d_ros.frame_fitter import FrameFitter
+
+    core = load_config()
+    path = FrameFitter(core, fitter=StubFitter(), tracker=Tracker(core.tracking), warm_fitter=StubFitter())
+    K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    obs, fit = observation(2, 0.0), fit_at(2, 0.0)
+
+    def lost(chamfer, off):
+        quality = dataclasses.replace(fit.quality, reprojection_px=1.0, chamfer_m=chamfer, points_to_mesh_m=off)
+        return path._lost(dataclasses.replace(fit, quality=quality), obs, K)
+
+    assert not lost(chamfer=0.2, off=0.03)
+    assert lost(chamfer=0.2, off=0.10)
 
 
 def test_a_refresh_fits_cold_only_when_a_builtin_hypothesis_beats_the_warm_start():

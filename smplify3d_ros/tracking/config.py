@@ -37,7 +37,7 @@ class TrackingConfig:
     refresh_timeout_s: float  # longest wait for a background refresh (its process starting included)
     refresh_nice: int  # scheduling niceness of the helper process (0-19: higher yields the CPU sooner)
     lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of the person's image height) is lost
-    lost_chamfer_m: float  # ... or whose mesh is farther than this from its points
+    lost_points_to_mesh_m: float  # ... or whose points lie farther than this from its mesh (mean)
     lost_background: bool  # a lost warm fit is output (flagged) while its cold refit runs in the helper process
     lost_apply_frames: int  # ... which becomes the track's last fit this many fitted frames later (waited for)
 
@@ -58,5 +58,5 @@ class TrackingConfig:
         require(0.0 <= self.shape_rate <= 1.0, "shape_rate must be in [0, 1]")
         require(self.accel_sigma_mps2 > 0 and self.position_sigma_m > 0 and self.image_depth_sigma_m > 0,
                 "accel_sigma_mps2, position_sigma_m and image_depth_sigma_m must be > 0")
-        require(self.lost_reprojection > 0 and self.lost_chamfer_m > 0,
-                "lost_reprojection and lost_chamfer_m must be > 0")
+        require(self.lost_reprojection > 0 and self.lost_points_to_mesh_m > 0,
+                "lost_reprojection and lost_points_to_mesh_m must be > 0")
