@@ -18,6 +18,7 @@ fits are Python-heavy and would share the interpreter lock with the warm fits.
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -36,15 +37,22 @@ class BackgroundError(RuntimeError):
 
 
 def _stop(proc: subprocess.Popen, conn: Connection) -> None:
+    """Close the connection, which ends the process once it reads from it; one still loading its model
+    (a loaded machine can take longer than the wait) is asked to end (SIGTERM: it exits quietly), then
+    killed."""
     try:
         conn.close()
     except OSError:
         pass
-    try:
-        proc.wait(timeout=5.0)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
+    for end in (None, proc.terminate, proc.kill):
+        if end is not None:
+            end()
+        try:
+            proc.wait(timeout=5.0)
+            return
+        except subprocess.TimeoutExpired:
+            continue
+    proc.wait()
 
 
 class BackgroundFitter:
@@ -135,6 +143,7 @@ def _serve(conn: Connection) -> None:
 
 
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, lambda *_: os._exit(0))  # asked to end (its run is over): quietly
     fd, nice = int(sys.argv[1]), int(sys.argv[2])
     if nice:
         try:
