@@ -44,14 +44,12 @@ def _stop(proc: subprocess.Popen, conn: Connection) -> None:
         conn.close()
     except OSError:
         pass
-    for end in (None, proc.terminate, proc.kill):
-        if end is not None:
-            end()
+    for escalate in (proc.terminate, proc.kill):
         try:
             proc.wait(timeout=5.0)
             return
         except subprocess.TimeoutExpired:
-            continue
+            escalate()
     proc.wait()
 
 
