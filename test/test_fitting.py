@@ -233,3 +233,45 @@ def test_a_tracked_person_fitted_cold_from_the_image_starts_at_their_tracks_dept
                                       predicted_pelvis=predicted)
     depth = initializer.estimate_depth(with_points, K, cfg.fitting.init, True)
     assert abs(depth - 5.0) < 0.5
+
+
+def test_the_best_heading_hypotheses_go_through_the_whole_fit_and_the_lowest_final_loss_wins(anny_model):
+    """With `init.final_hypotheses`, a built-in person's best hypotheses after the joint refinement are each
+    fitted through ICP and the stages, and the fit of lowest final loss is returned (margin 1), one per person
+    in the given order; a person with an external estimate is fitted once."""
+    cfg = load_config()
+    (builtin, external), K = _people(anny_model, 2, seed=3)
+    people = [dataclasses.replace(builtin.observation, init=None), external.observation]
+    one = Fitter(dataclasses.replace(cfg.fitting, init=dataclasses.replace(cfg.fitting.init, final_hypotheses=1)),
+                 anny_model)
+    every = Fitter(dataclasses.replace(cfg.fitting, init=dataclasses.replace(
+        cfg.fitting.init, final_hypotheses=4, final_hypothesis_ratio=1e6, final_hypothesis_margin=1.0)), anny_model)
+    rows = []
+    align = every._align_to_points
+    every._align_to_points = lambda batch: (rows.append(batch.size), align(batch))[1]
+    fits_one, fits_every = one.fit(people, K), every.fit(people, K)
+    assert rows[0] > 2  # several hypotheses of the built-in person went on, one row for the external one
+    assert [f.person_id for f in fits_every] == [p.person_id for p in people]
+    assert FLAG_EXTERNAL_INIT in fits_every[1].flags and FLAG_EXTERNAL_INIT not in fits_every[0].flags
+    assert fits_every[0].quality.final_loss <= 1.05 * fits_one[0].quality.final_loss
+    assert _mpjpe_mm(fits_every[1], external) < 60.0
+
+
+def test_another_hypothesis_replaces_the_leader_only_by_the_margin_and_diverged_rows_never_win():
+    from smplify3d_ros.fitting.fitter import _lowest_final_loss
+    from smplify3d_ros.types import FitQuality
+
+    def fit(person, loss, flags=()):
+        quality = FitQuality(reprojection_px=1.0, chamfer_m=0.0, num_points=0, visible_parts=[],
+                             icp_converged=True, final_loss=loss)
+        return dataclasses.make_dataclass("F", ["person_id", "quality", "flags"])(person, quality, set(flags))
+
+    fits = [fit(0, 5.0), fit(0, 2.0), fit(0, 1.0, {FLAG_DIVERGED}), fit(1, float("nan")), fit(1, float("inf")),
+            fit(2, 3.0)]
+    owner = np.array([0, 0, 0, 1, 1, 2])
+    assert _lowest_final_loss(fits, owner, 3) == [fits[1], fits[3], fits[5]]
+    assert _lowest_final_loss(fits, owner, 3, margin=0.5) == [fits[1], fits[3], fits[5]]  # 2 < 0.5 x 5
+    assert _lowest_final_loss(fits, owner, 3, margin=0.3) == [fits[0], fits[3], fits[5]]  # the leader stays
+    fits[3] = fit(1, float("nan"), {FLAG_DIVERGED})
+    fits[4] = fit(1, 7.0)
+    assert _lowest_final_loss(fits, owner, 3, margin=0.3)[1] is fits[4]  # a diverged leader gives way

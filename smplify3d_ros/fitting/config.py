@@ -88,6 +88,9 @@ class InitConfig:
     limb_depth_sigma: float
     refine_iterations: int
     hypothesis_iterations: int
+    final_hypotheses: int
+    final_hypothesis_ratio: float
+    final_hypothesis_margin: float
     refine_lr: float
     refine_pose_weight: float
     refine_chamfer: float
@@ -106,6 +109,9 @@ class InitConfig:
         require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")
         require(self.hypothesis_iterations >= 0, "hypothesis_iterations must be >= 0 (at most refine_iterations run)")
         require(self.heading_hypotheses >= 1, "heading_hypotheses must be >= 1")
+        require(self.final_hypotheses >= 1, "final_hypotheses must be >= 1")
+        require(self.final_hypothesis_ratio >= 1, "final_hypothesis_ratio must be >= 1")
+        require(0 < self.final_hypothesis_margin <= 1, "final_hypothesis_margin must be in (0, 1]")
         require(self.lidar_heading_min_points >= 2 and self.limb_min_points >= 1,
                 "lidar_heading_min_points must be >= 2 and limb_min_points >= 1")
         require(0 < self.lidar_heading_max_ratio <= 1, "lidar_heading_max_ratio must be in (0, 1]")

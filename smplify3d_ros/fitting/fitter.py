@@ -148,10 +148,10 @@ class Fitter:
             return []
         batch = self._start(people, K, lidar_origin, options or FitOptions())
         self._initialize(batch)
-        self._refine_builtin(batch)
+        batch, owner = self._refine_builtin(batch)
         self._align_to_points(batch)
         self._optimize(batch)
-        return self._results(batch)
+        return _lowest_final_loss(self._results(batch), owner, len(people), self.config.init.final_hypothesis_margin)
 
     # -- the steps ---------------------------------------------------------------------------------------
     def _start(self, people: list[PersonObservation], K: np.ndarray, lidar_origin: np.ndarray | None,
@@ -238,41 +238,62 @@ class Fitter:
                 state.transl[rows] += state.transl[rows] - pelvis_now[rows]
         return state
 
-    def _refine_builtin(self, batch: Batch) -> None:
+    def _refine_builtin(self, batch: Batch) -> tuple[Batch, np.ndarray]:
         """The built-in estimate: every heading hypothesis of every person refined together for
         `hypothesis_iterations` (pose, orientation and position against the keypoints, the points and the
-        limb depths, anatomical priors only: there is no estimate to hold), each person's lowest loss
-        kept, then refined alone for the rest of `refine_iterations`. People with an external estimate
-        keep theirs."""
+        limb depths, anatomical priors only: there is no estimate to hold), then each person's
+        `final_hypotheses` lowest losses (those within `final_hypothesis_ratio` of the lowest) refined on
+        for the rest of `refine_iterations`. People with an external estimate keep theirs. Returns the
+        batch the later steps fit, one row per person and kept hypothesis (the leader first), and each
+        row's person: another hypothesis's fit replaces the leader's when its final loss is below
+        `final_hypothesis_margin` of the leader's (`_lowest_final_loss`). A heading the first iterations
+        cannot tell from its mirror is told by the whole fit."""
         init = self.config.init
+        owner = np.arange(batch.size)
         if not batch.builtin.any() or init.refine_iterations <= 0:
-            return
-        trial, best = self._compete(batch)
-        for i, row in best.items():
-            for name in PARAM_FIELDS:
-                with torch.no_grad():
-                    getattr(batch.state, name)[i] = getattr(trial.state, name)[row]
+            return batch, owner
+        trial, kept = self._compete(batch)
+        rows = [np.array([i]) if i not in kept else kept[i] for i in range(batch.size)]
+        owner = np.concatenate([np.full(len(r), i) for i, r in enumerate(rows)])
+        if len(owner) > batch.size:  # several hypotheses go on: a batch of them
+            out = batch.take(owner)
+            out.flags = [set(batch.flags[i]) for i in owner]
+            out.hypotheses = [batch.hypotheses[i] for i in owner]
+            out.state = batch.state.take(torch.as_tensor(owner, device=self.device))
+        else:
+            out = batch
+        for r, (i, row) in enumerate((i, row) for i, person_rows in enumerate(rows) for row in person_rows):
+            if i in kept:
+                for name in PARAM_FIELDS:
+                    with torch.no_grad():
+                        getattr(out.state, name)[r] = getattr(trial.state, name)[row]
         rest = init.refine_iterations - min(init.hypothesis_iterations, init.refine_iterations)
         if rest > 0:
-            chosen = batch.take(np.flatnonzero(batch.builtin))
-            chosen.state = batch.state.take(torch.as_tensor(np.flatnonzero(batch.builtin), device=self.device))
+            built = np.flatnonzero(out.builtin)
+            chosen = out.take(built)
+            chosen.state = out.state.take(torch.as_tensor(built, device=self.device))
             self._refine(chosen, rest)
-            batch.state.copy_rows_from_subset(chosen.state, torch.as_tensor(np.flatnonzero(batch.builtin)))
+            out.state.copy_rows_from_subset(chosen.state, torch.as_tensor(built))
+        return out, owner
 
-    def _compete(self, batch: Batch) -> tuple[Batch, dict[int, int]]:
+    def _compete(self, batch: Batch) -> tuple[Batch, dict[int, np.ndarray]]:
         """Every hypothesis of every built-in person refined together for `init.hypothesis_iterations`
-        (0: compared as they start): the trial batch and, per built-in person, its row of lowest loss."""
+        (0: compared as they start): the trial batch and, per built-in person, its rows that go on, lowest
+        loss first (at most `init.final_hypotheses`, within `init.final_hypothesis_ratio` of the lowest)."""
         init = self.config.init
         rows = np.array([i for i in range(batch.size) for _ in batch.hypotheses[i]], dtype=np.int64)
         trial = batch.take(rows)
         trial.state = self._placed_state([h for i in range(batch.size) for h in batch.hypotheses[i]],
                                          np.ones(len(rows), dtype=bool))
         loss = self._refine(trial, min(init.hypothesis_iterations, init.refine_iterations))
-        best = {}
+        loss = loss.cpu().double().numpy()
+        kept = {}
         for i in np.flatnonzero(batch.builtin):
             mine = np.flatnonzero(rows == i)
-            best[int(i)] = int(mine[int(torch.argmin(loss[torch.as_tensor(mine)]))])
-        return trial, best
+            mine = mine[np.argsort(loss[mine], kind="stable")]
+            near = loss[mine] <= init.final_hypothesis_ratio * loss[mine[0]] if np.isfinite(loss[mine[0]]) else []
+            kept[int(i)] = mine[: max(1, min(init.final_hypotheses, int(np.sum(near))))]
+        return trial, kept
 
     def given_hypothesis_wins(self, people: list[PersonObservation], K: np.ndarray,
                               lidar_origin: np.ndarray | None = None,
@@ -287,10 +308,10 @@ class Fitter:
         self._initialize(batch)
         if not batch.builtin.any() or self.config.init.refine_iterations <= 0:
             return [False] * len(people)
-        trial, best = self._compete(batch)
+        trial, kept = self._compete(batch)
         offsets = np.cumsum([0] + [len(h) for h in batch.hypotheses])
-        return [i in best and p.hypothesis is not None and p.hypothesis.model == self.model.name
-                and best[i] == offsets[i + 1] - 1 for i, p in enumerate(batch.people)]
+        return [i in kept and p.hypothesis is not None and p.hypothesis.model == self.model.name
+                and kept[i][0] == offsets[i + 1] - 1 for i, p in enumerate(batch.people)]
 
     def _refine(self, trial: Batch, iterations: int) -> torch.Tensor:
         """`iterations` of the built-in init's refinement of `trial`'s state, in place; (B,) final losses
@@ -503,6 +524,22 @@ class Fitter:
             depth = self.model.rotation_center(shape, batch.state.transl)[:, 2].clamp(min=0.3)
         f = 0.5 * (batch.K[0, 0] + batch.K[1, 1])
         return reference * depth / (f * self.config.init.body_height)
+
+
+def _lowest_final_loss(fits: list[BodyFit], owner: np.ndarray, people: int, margin: float = 1.0) -> list[BodyFit]:
+    """Per person, the fit of their first row (the hypothesis that led after the joint refinement) unless
+    another's final loss is below `margin` times its own (diverged or non-finite rows never win)."""
+    def loss(r: int) -> float:
+        value = fits[r].quality.final_loss
+        return value if FLAG_DIVERGED not in fits[r].flags and np.isfinite(value) else np.inf
+
+    picked = []
+    for i in range(people):
+        rows = np.flatnonzero(owner == i)
+        best = min(rows[1:], key=loss, default=rows[0])
+        picked.append(fits[best] if loss(best) < margin * loss(rows[0]) or not np.isfinite(loss(rows[0]))
+                      and np.isfinite(loss(best)) else fits[rows[0]])
+    return picked
 
 
 def _refine_profile(cfg: FittingConfig):
