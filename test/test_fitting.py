@@ -258,7 +258,7 @@ def test_the_best_heading_hypotheses_go_through_the_whole_fit_and_the_lowest_fin
 
 
 def test_another_hypothesis_replaces_the_leader_only_by_the_margin_and_diverged_rows_never_win():
-    from smplify3d_ros.fitting.fitter import _lowest_final_loss
+    from smplify3d_ros.fitting.fitter import _pick_hypotheses
     from smplify3d_ros.types import FitQuality
 
     def fit(person, loss, flags=()):
@@ -269,9 +269,9 @@ def test_another_hypothesis_replaces_the_leader_only_by_the_margin_and_diverged_
     fits = [fit(0, 5.0), fit(0, 2.0), fit(0, 1.0, {FLAG_DIVERGED}), fit(1, float("nan")), fit(1, float("inf")),
             fit(2, 3.0)]
     owner = np.array([0, 0, 0, 1, 1, 2])
-    assert _lowest_final_loss(fits, owner, 3) == [fits[1], fits[3], fits[5]]
-    assert _lowest_final_loss(fits, owner, 3, margin=0.5) == [fits[1], fits[3], fits[5]]  # 2 < 0.5 x 5
-    assert _lowest_final_loss(fits, owner, 3, margin=0.3) == [fits[0], fits[3], fits[5]]  # the leader stays
+    assert _pick_hypotheses(fits, owner, 3) == [fits[1], fits[3], fits[5]]
+    assert _pick_hypotheses(fits, owner, 3, margin=0.5) == [fits[1], fits[3], fits[5]]  # 2 < 0.5 x 5
+    assert _pick_hypotheses(fits, owner, 3, margin=0.3) == [fits[0], fits[3], fits[5]]  # the leader stays
     fits[3] = fit(1, float("nan"), {FLAG_DIVERGED})
     fits[4] = fit(1, 7.0)
-    assert _lowest_final_loss(fits, owner, 3, margin=0.3)[1] is fits[4]  # a diverged leader gives way
+    assert _pick_hypotheses(fits, owner, 3, margin=0.3)[1] is fits[4]  # a diverged leader gives way

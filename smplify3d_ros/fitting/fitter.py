@@ -151,7 +151,7 @@ class Fitter:
         batch, owner = self._refine_builtin(batch)
         self._align_to_points(batch)
         self._optimize(batch)
-        return _lowest_final_loss(self._results(batch), owner, len(people), self.config.init.final_hypothesis_margin)
+        return _pick_hypotheses(self._results(batch), owner, len(people), self.config.init.final_hypothesis_margin)
 
     # -- the steps ---------------------------------------------------------------------------------------
     def _start(self, people: list[PersonObservation], K: np.ndarray, lidar_origin: np.ndarray | None,
@@ -246,7 +246,7 @@ class Fitter:
         for the rest of `refine_iterations`. People with an external estimate keep theirs. Returns the
         batch the later steps fit, one row per person and kept hypothesis (the leader first), and each
         row's person: another hypothesis's fit replaces the leader's when its final loss is below
-        `final_hypothesis_margin` of the leader's (`_lowest_final_loss`). A heading the first iterations
+        `final_hypothesis_margin` of the leader's (`_pick_hypotheses`). A heading the first iterations
         cannot tell from its mirror is told by the whole fit."""
         init = self.config.init
         owner = np.arange(batch.size)
@@ -526,9 +526,10 @@ class Fitter:
         return reference * depth / (f * self.config.init.body_height)
 
 
-def _lowest_final_loss(fits: list[BodyFit], owner: np.ndarray, people: int, margin: float = 1.0) -> list[BodyFit]:
-    """Per person, the fit of their first row (the hypothesis that led after the joint refinement) unless
-    another's final loss is below `margin` times its own (diverged or non-finite rows never win)."""
+def _pick_hypotheses(fits: list[BodyFit], owner: np.ndarray, people: int, margin: float = 1.0) -> list[BodyFit]:
+    """Per person (`owner`: each fit's person), the fit of their first row (the hypothesis that led after
+    the joint refinement) unless another's final loss is below `margin` times its own; diverged or
+    non-finite rows count as an infinite loss (a diverged leader gives way to any finite fit)."""
     def loss(r: int) -> float:
         value = fits[r].quality.final_loss
         return value if FLAG_DIVERGED not in fits[r].flags and np.isfinite(value) else np.inf
@@ -537,8 +538,7 @@ def _lowest_final_loss(fits: list[BodyFit], owner: np.ndarray, people: int, marg
     for i in range(people):
         rows = np.flatnonzero(owner == i)
         best = min(rows[1:], key=loss, default=rows[0])
-        picked.append(fits[best] if loss(best) < margin * loss(rows[0]) or not np.isfinite(loss(rows[0]))
-                      and np.isfinite(loss(best)) else fits[rows[0]])
+        picked.append(fits[best] if loss(best) < margin * loss(rows[0]) else fits[rows[0]])
     return picked
 
 
