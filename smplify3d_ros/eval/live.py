@@ -34,6 +34,7 @@ import numpy as np
 from smplify3d_ros.keypoints import COCO17_NAMES
 
 DEFAULT_PROFILE = "jackal_vlp16"  # the node's own default params_file
+FIRST_BODIES_MAX_S = 30.0  # s, longest wait past the settle for the first ~/bodies (a machine loaded by other work)
 INPUT_TYPES = {
     "image": "sensor_msgs/msg/Image",
     "compressed_image": "sensor_msgs/msg/CompressedImage",
@@ -261,6 +262,8 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
         else:
             result.frames_played, result.duration_s, result.offset_ns = _play_in_child(bag, topics, speed)
         time.sleep(settle_s)  # the last frame's fit and one diagnostics period
+        if _wait_for(lambda: bool(result.bodies), FIRST_BODIES_MAX_S):  # the first fit ran past the settle
+            time.sleep(settle_s)  # ... then the diagnostics that report it
     finally:
         if executor is not None:
             executor.shutdown(timeout_sec=5.0)
@@ -270,6 +273,16 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
         rclpy.try_shutdown()
     result.accuracy = live_accuracy(bag, result)
     return result
+
+
+def _wait_for(condition: Any, max_s: float, period_s: float = 0.2) -> bool:
+    """Poll `condition()` until it holds, at most `max_s`; whether it had to wait (False: it held at once)."""
+    if condition():
+        return False
+    deadline = time.monotonic() + max_s
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(period_s)
+    return True
 
 
 def live_accuracy(bag: Path, result: LiveResult) -> LiveAccuracy | None:
