@@ -135,12 +135,7 @@ class _Player:
 
     def wait_for_subscribers(self, timeout_s: float) -> bool:
         """Whether every publisher was matched by a subscriber within `timeout_s` (discovery)."""
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if all(p.get_subscription_count() > 0 for p in self.publishers.values()):
-                return True
-            time.sleep(0.05)
-        return False
+        return _wait_for(lambda: all(p.get_subscription_count() > 0 for p in self.publishers.values()), timeout_s)
 
 
 def input_topics(node_config: Any) -> dict[str, str]:
@@ -262,7 +257,8 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
         else:
             result.frames_played, result.duration_s, result.offset_ns = _play_in_child(bag, topics, speed)
         time.sleep(settle_s)  # the last frame's fit and one diagnostics period
-        if _wait_for(lambda: bool(result.bodies), FIRST_BODIES_MAX_S):  # the first fit ran past the settle
+        if not result.bodies:  # the first fit ran past the settle (a machine loaded by other work)
+            _wait_for(lambda: bool(result.bodies), FIRST_BODIES_MAX_S, period_s=0.2)
             time.sleep(settle_s)  # ... then the diagnostics that report it
     finally:
         if executor is not None:
@@ -275,12 +271,12 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
     return result
 
 
-def _wait_for(condition: Any, max_s: float, period_s: float = 0.2) -> bool:
-    """Poll `condition()` until it holds, at most `max_s`; whether it had to wait (False: it held at once)."""
-    if condition():
-        return False
-    deadline = time.monotonic() + max_s
-    while not condition() and time.monotonic() < deadline:
+def _wait_for(condition: Any, timeout_s: float, period_s: float = 0.05) -> bool:
+    """Poll `condition()` until it holds or `timeout_s` has passed; whether it held."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() >= deadline:
+            return False
         time.sleep(period_s)
     return True
 

@@ -258,15 +258,14 @@ class Fitter:
         if len(owner) > batch.size:  # several hypotheses go on: a batch of them
             out = batch.take(owner)
             out.flags = [set(batch.flags[i]) for i in owner]
-            out.hypotheses = [batch.hypotheses[i] for i in owner]
             out.state = batch.state.take(torch.as_tensor(owner, device=self.device))
         else:
             out = batch
-        for r, (i, row) in enumerate((i, row) for i, person_rows in enumerate(rows) for row in person_rows):
-            if i in kept:
-                for name in PARAM_FIELDS:
-                    with torch.no_grad():
-                        getattr(out.state, name)[r] = getattr(trial.state, name)[row]
+        builtin_rows = np.flatnonzero(np.isin(owner, list(kept)))  # their hypotheses, in `kept`'s order
+        source = torch.as_tensor(np.concatenate([kept[i] for i in range(batch.size) if i in kept]))
+        with torch.no_grad():
+            for name in PARAM_FIELDS:
+                getattr(out.state, name)[torch.as_tensor(builtin_rows)] = getattr(trial.state, name)[source]
         rest = init.refine_iterations - min(init.hypothesis_iterations, init.refine_iterations)
         if rest > 0:
             built = np.flatnonzero(out.builtin)
@@ -291,8 +290,8 @@ class Fitter:
         for i in np.flatnonzero(batch.builtin):
             mine = np.flatnonzero(rows == i)
             mine = mine[np.argsort(loss[mine], kind="stable")]
-            near = loss[mine] <= init.final_hypothesis_ratio * loss[mine[0]] if np.isfinite(loss[mine[0]]) else []
-            kept[int(i)] = mine[: max(1, min(init.final_hypotheses, int(np.sum(near))))]
+            near = np.isfinite(loss[mine]) & (loss[mine] <= init.final_hypothesis_ratio * loss[mine[0]])
+            kept[int(i)] = mine[: max(1, min(init.final_hypotheses, int(near.sum())))]
         return trial, kept
 
     def given_hypothesis_wins(self, people: list[PersonObservation], K: np.ndarray,
