@@ -133,23 +133,30 @@ def test_a_few_points_still_fix_the_depth_of_an_image_only_person(anny_model):
     assert depth_error < 0.3, depth_error  # the image alone would keep the 1.5 m error
 
 
+def _image_only_depth_errors(model, overrides: dict, n_points: int) -> list[float]:
+    """Depth errors (m) of three people 12 m out with `n_points` points each (too few for L_3D), fitted
+    from the built-in initializer with the config `overrides`."""
+    K = default_intrinsics()
+    fitter = Fitter(load_config(overrides=overrides).fitting, model)
+    errors = []
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        sp = make_person(model, rng, K, distance=12.0, yaw=rng.uniform(-1.0, 1.0), n_points=n_points,
+                         point_noise=0.02, keypoint_noise_px=2.0)
+        sp.observation.init = None
+        fit = fitter.fit([sp.observation], K)[0]
+        assert FLAG_IMAGE_ONLY in fit.flags
+        errors.append(abs(fit.params.transl[2] - sp.truth.transl[2]))
+    return errors
+
+
 def test_a_builtin_start_holds_the_depth_its_few_points_measured(anny_model):
     """12 m out, ten points: too few for L_3D, and the built-in initializer took its depth from them.
     Without the `points_depth` hold the 2D stages walk the depth along the ray by the body's assumed
     size (0.5-2 m here); with it the fit stays within a few centimetres."""
-    K = default_intrinsics()
     for hold, limit in ((10000.0, 0.15), (0.0, None)):
-        cfg = load_config(overrides={"fitting": {"profiles": {"robot": {"weights": {"points_depth": hold}}}}})
-        fitter = Fitter(cfg.fitting, anny_model)
-        errors = []
-        for seed in range(3):
-            rng = np.random.default_rng(seed)
-            sp = make_person(anny_model, rng, K, distance=12.0, yaw=rng.uniform(-1.0, 1.0), n_points=10,
-                             point_noise=0.02, keypoint_noise_px=2.0)
-            sp.observation.init = None
-            fit = fitter.fit([sp.observation], K)[0]
-            assert FLAG_IMAGE_ONLY in fit.flags
-            errors.append(abs(fit.params.transl[2] - sp.truth.transl[2]))
+        overrides = {"fitting": {"profiles": {"robot": {"weights": {"points_depth": hold}}}}}
+        errors = _image_only_depth_errors(anny_model, overrides, n_points=10)
         if limit is None:
             assert min(errors) > 0.3, errors  # the counterfactual: the depth drifts
         else:
@@ -160,18 +167,8 @@ def test_three_points_fix_the_depth_of_a_person_seen_from_the_image(anny_model):
     """12 m out, three points (a person mostly hidden, or crossed by one ring): `min_points_depth` (3)
     lets them give the depth; with more required, the size cues place the person (tuning seeds 114 and
     36 of the robot scenes: 483 and 290 mm MPJPE, 110 and 92 mm with the three points)."""
-    K = default_intrinsics()
     for required, limit in ((3, 0.15), (4, None)):
-        fitter = Fitter(load_config(overrides={"fitting": {"min_points_depth": required}}).fitting, anny_model)
-        errors = []
-        for seed in range(3):
-            rng = np.random.default_rng(seed)
-            sp = make_person(anny_model, rng, K, distance=12.0, yaw=rng.uniform(-1.0, 1.0), n_points=3,
-                             point_noise=0.02, keypoint_noise_px=2.0)
-            sp.observation.init = None
-            fit = fitter.fit([sp.observation], K)[0]
-            assert FLAG_IMAGE_ONLY in fit.flags
-            errors.append(abs(fit.params.transl[2] - sp.truth.transl[2]))
+        errors = _image_only_depth_errors(anny_model, {"fitting": {"min_points_depth": required}}, n_points=3)
         if limit is None:
             assert min(errors) > 0.3, errors  # the counterfactual: the size cues put them 1-2 m off
         else:
