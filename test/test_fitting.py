@@ -3,6 +3,7 @@
 import dataclasses
 
 import numpy as np
+import torch
 
 from smplify3d_ros.config import load_config
 from smplify3d_ros.eval.synthetic import default_intrinsics, make_person, perturb
@@ -173,6 +174,30 @@ def test_three_points_fix_the_depth_of_a_person_seen_from_the_image(anny_model):
             assert min(errors) > 0.3, errors  # the counterfactual: the size cues put them 1-2 m off
         else:
             assert max(errors) < limit, errors
+
+
+def test_the_neutral_prior_weighs_more_on_people_small_in_the_image(anny_model):
+    """`neutral_reference_px`: a person whose expected height in the image is below it gets the neutral
+    prior's weight scaled up (their fit ends nearer the neutral pose); one above it is fitted as without."""
+    K = default_intrinsics()
+
+    def fits(reference: float, distance: float):
+        overrides = {"fitting": {"profiles": {"robot": {"neutral_reference_px": reference}}}}
+        fitter = Fitter(load_config(overrides=overrides).fitting, anny_model)
+        rng = np.random.default_rng(4)
+        sp = make_person(anny_model, rng, K, distance=distance, yaw=0.5, n_points=40, point_noise=0.01,
+                         keypoint_noise_px=1.0, pose_spread=0.5)
+        sp.observation.init = None
+        return fitter, fitter.fit([sp.observation], K)[0]
+
+    for distance, scaled in ((12.0, True), (2.5, False)):  # 640 px camera: ~45 and ~220 px tall
+        fitter, plain = fits(0.0, distance)
+        _, weighted = fits(90.0, distance)
+        neutral = lambda f: float((anny_model.neutral_residuals(torch.as_tensor(f.params.pose)[None]) ** 2).sum())  # noqa: E731
+        if scaled:
+            assert neutral(weighted) < 0.9 * neutral(plain), (neutral(weighted), neutral(plain))
+        else:
+            np.testing.assert_allclose(weighted.joints, plain.joints, atol=1e-6)
 
 
 def _depth_shifted_person(model, shift_m, seed=23):

@@ -479,6 +479,7 @@ class Fitter:
             depth_measured=torch.as_tensor([not batch.use_lidar[i] and len(p.points) >= self.config.min_points_depth
                                             for i, p in enumerate(batch.people)], dtype=torch.bool, device=dev),
             pixel_scale=self._pixel_scale(batch),
+            neutral_scale=self._neutral_scale(batch),
             up=torch.as_tensor(np.stack([p.ground[:3] if p.ground is not None else (0.0, -1.0, 0.0)
                                          for p in batch.people]), dtype=self.dtype, device=dev),
             keypoint_depth=None if batch.keypoint_depth is None else torch.as_tensor(
@@ -512,17 +513,32 @@ class Fitter:
             return None
         return self._tensor(rows)
 
+    def _neutral_scale(self, batch: Batch) -> torch.Tensor | None:
+        """(B,) max(1, `neutral_reference_px` / each person's expected height in the image (f · stature /
+        depth)), the factor on their neutral-pose prior weight: the fewer pixels (and, with them, points) a
+        person has, the less the data say about their limbs; None when the profile keeps it constant."""
+        reference = self.config.optimizer.neutral_reference_px
+        if reference <= 0:
+            return None
+        depth, f = self._depth_and_focal(batch)
+        return (reference * depth / (f * self.config.init.body_height)).clamp(min=1.0)
+
     def _pixel_scale(self, batch: Batch) -> torch.Tensor | None:
         """(B,) reference height / each person's expected height in the image (f · stature / depth), the
         factor on their pixel residuals; None when the profile works in raw pixels."""
         reference = self.config.optimizer.pixel_reference_px
         if reference <= 0:
             return None
+        depth, f = self._depth_and_focal(batch)
+        return reference * depth / (f * self.config.init.body_height)
+
+    def _depth_and_focal(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B,) each body's depth (its rotation centre's z, m) and the focal length (px): a person of
+        `init.body_height` spans f · body_height / depth pixels."""
         with torch.no_grad():
             shape = self.model.shape_from_free(batch.state.shape)
             depth = self.model.rotation_center(shape, batch.state.transl)[:, 2].clamp(min=0.3)
-        f = 0.5 * (batch.K[0, 0] + batch.K[1, 1])
-        return reference * depth / (f * self.config.init.body_height)
+        return depth, 0.5 * (batch.K[0, 0] + batch.K[1, 1])
 
 
 def _pick_hypotheses(fits: list[BodyFit], owner: np.ndarray, people: int, margin: float = 1.0) -> list[BodyFit]:

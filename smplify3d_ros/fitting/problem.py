@@ -75,6 +75,7 @@ class FitProblem:
     vertex_ids: torch.Tensor | None = None  # (B, n) each person's L_3D vertices as model vertex ids
     up: torch.Tensor | None = None  # (B, 3) the world's up in the camera frame (ground normal, else −y)
     _copies: dict = field(default_factory=dict, repr=False)  # `repeated`'s problems, by count
+    neutral_scale: torch.Tensor | None = None  # (B,) factor on weights.neutral per person (None: 1)
     init_transl: torch.Tensor | None = None  # (B, 3) the translation at the start (image-only depth hold)
     depth_measured: torch.Tensor | None = None  # (B,) bool: people without L_3D whose few points gave the depth
     predicted_transl: torch.Tensor | None = None  # (B, 3) the motion hold's translations (NaN rows: none)

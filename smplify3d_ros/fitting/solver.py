@@ -263,7 +263,7 @@ def prior_block(model: BodyModel, state, problem, stage, profile: OptimizerProfi
     pose = state.pose
     terms = [(w.pose, *range_prior_linearized(model, pose)), (w.bend, *bending_linearized(model, pose))]
     if w.neutral > 0:
-        terms.append((w.neutral, *neutral_linearized(model, pose)))
+        terms.append((neutral_weight(w, problem), *neutral_linearized(model, pose)))
     if not stage.hold:
         _add_pose_terms(terms, B, layout, profile, acc)
         return
@@ -275,11 +275,21 @@ def prior_block(model: BodyModel, state, problem, stage, profile: OptimizerProfi
     _add_pose_terms(terms, B, layout, profile, acc)
 
 
+def neutral_weight(weights, problem) -> float | torch.Tensor:
+    """The neutral-pose prior's weight: the profile's, or (B,) per person with `problem.neutral_scale`."""
+    return weights.neutral if problem.neutral_scale is None else weights.neutral * problem.neutral_scale
+
+
 def _add_pose_terms(terms, B: int, layout: Layout, profile: OptimizerProfile, acc: Residuals) -> None:
     for weight, r, d_pose in terms:
         J = r.new_zeros(B, r.shape[1], layout.size)
         J[..., : 3 * layout.joints] = d_pose
-        acc.add(_w(weight, profile) ** 0.5 * r, _w(weight, profile) ** 0.5 * J)
+        root = _w(weight, profile) ** 0.5
+        if isinstance(root, torch.Tensor):  # per person
+            root = root.to(r.dtype)[:, None]
+            acc.add(root * r, root[..., None] * J)
+        else:
+            acc.add(root * r, root * J)
 
 
 def keypoint_depth_block(body: Linearized, problem, stage, profile: OptimizerProfile, acc: Residuals) -> None:
