@@ -188,11 +188,10 @@ def test_the_neutral_prior_weighs_more_on_people_small_in_the_image(anny_model):
         sp = make_person(anny_model, rng, K, distance=distance, yaw=0.5, n_points=40, point_noise=0.01,
                          keypoint_noise_px=1.0, pose_spread=0.5)
         sp.observation.init = None
-        return fitter, fitter.fit([sp.observation], K)[0]
+        return fitter.fit([sp.observation], K)[0]
 
     for distance, scaled in ((12.0, True), (2.5, False)):  # 640 px camera: ~45 and ~220 px tall
-        fitter, plain = fits(0.0, distance)
-        _, weighted = fits(90.0, distance)
+        plain, weighted = fits(0.0, distance), fits(90.0, distance)
         neutral = lambda f: float((anny_model.neutral_residuals(torch.as_tensor(f.params.pose)[None]) ** 2).sum())  # noqa: E731
         if scaled:
             assert neutral(weighted) < 0.9 * neutral(plain), (neutral(weighted), neutral(plain))

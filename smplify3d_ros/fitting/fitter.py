@@ -518,27 +518,22 @@ class Fitter:
         depth)), the factor on their neutral-pose prior weight: the fewer pixels (and, with them, points) a
         person has, the less the data say about their limbs; None when the profile keeps it constant."""
         reference = self.config.optimizer.neutral_reference_px
-        if reference <= 0:
-            return None
-        depth, f = self._depth_and_focal(batch)
-        return (reference * depth / (f * self.config.init.body_height)).clamp(min=1.0)
+        return None if reference <= 0 else self._over_expected_height(batch, reference).clamp(min=1.0)
 
     def _pixel_scale(self, batch: Batch) -> torch.Tensor | None:
         """(B,) reference height / each person's expected height in the image (f · stature / depth), the
         factor on their pixel residuals; None when the profile works in raw pixels."""
         reference = self.config.optimizer.pixel_reference_px
-        if reference <= 0:
-            return None
-        depth, f = self._depth_and_focal(batch)
-        return reference * depth / (f * self.config.init.body_height)
+        return None if reference <= 0 else self._over_expected_height(batch, reference)
 
-    def _depth_and_focal(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B,) each body's depth (its rotation centre's z, m) and the focal length (px): a person of
-        `init.body_height` spans f · body_height / depth pixels."""
+    def _over_expected_height(self, batch: Batch, reference_px: float) -> torch.Tensor:
+        """(B,) `reference_px` / each person's expected height in the image, f · `init.body_height` / depth
+        (depth: the body's rotation centre's z)."""
         with torch.no_grad():
             shape = self.model.shape_from_free(batch.state.shape)
             depth = self.model.rotation_center(shape, batch.state.transl)[:, 2].clamp(min=0.3)
-        return depth, 0.5 * (batch.K[0, 0] + batch.K[1, 1])
+        f = 0.5 * (batch.K[0, 0] + batch.K[1, 1])
+        return reference_px * depth / (f * self.config.init.body_height)
 
 
 def _pick_hypotheses(fits: list[BodyFit], owner: np.ndarray, people: int, margin: float = 1.0) -> list[BodyFit]:

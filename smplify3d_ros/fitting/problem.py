@@ -70,12 +70,12 @@ class FitProblem:
     init_pose: torch.Tensor  # (B, J, 3) the pose L_θocc holds occluded parts to
     use_lidar: torch.Tensor  # (B,) bool: enough points for the 3D term
     pixel_scale: torch.Tensor | None = None  # (B,) factor on each person's pixel residuals (None: 1)
+    neutral_scale: torch.Tensor | None = None  # (B,) factor on weights.neutral per person (None: 1)
     empty_subset: torch.Tensor | None = None  # (0,) int64: no vertex (one tensor, so model caches hold)
     keypoint_depth: torch.Tensor | None = None  # (B, 17) camera-z targets of limb keypoints (NaN: none)
     vertex_ids: torch.Tensor | None = None  # (B, n) each person's L_3D vertices as model vertex ids
     up: torch.Tensor | None = None  # (B, 3) the world's up in the camera frame (ground normal, else −y)
     _copies: dict = field(default_factory=dict, repr=False)  # `repeated`'s problems, by count
-    neutral_scale: torch.Tensor | None = None  # (B,) factor on weights.neutral per person (None: 1)
     init_transl: torch.Tensor | None = None  # (B, 3) the translation at the start (image-only depth hold)
     depth_measured: torch.Tensor | None = None  # (B,) bool: people without L_3D whose few points gave the depth
     predicted_transl: torch.Tensor | None = None  # (B, 3) the motion hold's translations (NaN rows: none)
