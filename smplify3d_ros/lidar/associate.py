@@ -55,7 +55,13 @@ track's prediction), a cluster depth within that expectation's tolerance: a trac
 behind another keeps their own few points rather than the wall seen past their shoulder. Pairs are taken
 greedily by score; each person gets one main cluster, and a cluster that is already someone's main is
 shared only when enough of the second person's mask points on it are exclusive (`share_min_exclusive`):
-two people touching in 3D form one cluster, yet each has their own region of it. Further clusters that
+two people touching in 3D form one cluster, yet each has their own region of it. People left without
+a main cluster get a second look (`second_look`) once the others are placed: a placed person's body
+hides nothing (what their cluster covers of a torso behind them is them, not a reason against the
+person behind), and a placed person holds only the points within `body_depth_window_m` of their own
+depth, so points metres behind them count as exclusively the hidden person's. A person half behind
+another, whose own points all fell in the front person's mask too, otherwise scored below zero on
+every cluster and was fitted from the image alone. Further clusters that
 are nobody's main and qualify but for the score join: those within `depth_tolerance_m` of the main
 cluster's depth (an arm or the legs split off by a gap or an occluder), then, transitively, those within
 `body_depth_window_m` in depth that come within `secondary_link_m` of a joined one (knees or arms in
@@ -188,6 +194,7 @@ def _grouped_median(groups: np.ndarray, values: np.ndarray, n_groups: int) -> np
 def _contradicted_parts(
     z: np.ndarray, clusters: np.ndarray, parts: np.ndarray, hypotheses: np.ndarray,
     hypothesis_depth: np.ndarray, own_core: np.ndarray, config: ExtractionConfig,
+    can_hide: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(H,) for each hypothesis "cluster j is this person": body parts that refute it, and parts that
     it would have hidden.
@@ -203,13 +210,16 @@ def _contradicted_parts(
     another), but those keypoints were seen with confidence, so each weighs `hidden_weight` against j.
     Legs are not counted: a detector reports legs behind a box with confidence (hallucinated).
     z, clusters, parts: depth, cluster and body part of the person's core points; own_core: (H, parts)
-    core points of each hypothesis cluster per part.
+    core points of each hypothesis cluster per part; can_hide: optional (n,) bool, the core points that
+    count as hiding a part (default: all).
     """
     if len(hypotheses) == 0 or len(z) == 0:
         return np.zeros(len(hypotheses)), np.zeros(len(hypotheses))
     other = clusters[None, :] != hypotheses[:, None]
     behind = (z[None, :] > hypothesis_depth[:, None] + config.depth_tolerance_m) & other
     before = (z[None, :] < hypothesis_depth[:, None] - config.depth_tolerance_m) & other
+    if can_hide is not None:
+        before &= can_hide[None, :]
     one_hot = np.eye(own_core.shape[1])[parts]  # (n, parts)
 
     def outvoted(selection: np.ndarray, part_names: list[str]) -> np.ndarray:
@@ -285,8 +295,21 @@ def _main_clusters(
     surface: (P, C) a surface at the cluster's depth goes on past the sides of the bbox;
     expected_depth: optional (P, 2) expected depth and tolerance per person (NaN: none).
     """
-    in_box, in_mask, exclusive = counts["in_box"], counts["in_mask"], counts["exclusive"]
-    n_people, n_clusters = in_mask.shape
+    score, body_like = _qualify(counts, coverage, contradicted, mask_cover, box_fraction, depth, extent,
+                                surface, config, expected_depth)
+    main, owners = _assign(score, body_like, counts, config)
+    body_like[:, owners > 0] = False  # someone's main cluster is nobody's extra
+    return main, body_like
+
+
+def _qualify(
+    counts: dict[str, np.ndarray], coverage: np.ndarray, contradicted: np.ndarray,
+    mask_cover: np.ndarray, box_fraction: np.ndarray, depth: np.ndarray, extent: np.ndarray,
+    surface: np.ndarray, config: ExtractionConfig, expected_depth: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(P, C) score of each (person, cluster) pair and whether the cluster may be part of that body
+    (`_main_clusters` has the arguments)."""
+    in_box, in_mask = counts["in_box"], counts["in_mask"]
     purity = _isolation(in_mask / np.maximum(in_box, 1), mask_cover)
     bounded = _isolation(in_box / np.maximum(in_box + counts["in_context"], 1), box_fraction[:, None])
     isolation = np.maximum(purity, bounded)
@@ -297,9 +320,23 @@ def _main_clusters(
             expected, tolerance = expected_depth[:, :1], expected_depth[:, 1:]
             plausible &= ~(np.abs(depth - expected) > tolerance)  # NaN expectation: no constraint
         body_like = (in_mask > 0) & plausible & (isolation >= config.min_isolation) & ~surface
-    main = np.full(n_people, -1)
-    owners = np.zeros(n_clusters, dtype=np.int64)
-    people, clusters = np.nonzero(body_like & (score > 0))
+    return score, body_like
+
+
+def _assign(
+    score: np.ndarray, body_like: np.ndarray, counts: dict[str, np.ndarray], config: ExtractionConfig,
+    main: np.ndarray | None = None, owners: np.ndarray | None = None, people: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(P,) main clusters and (C,) how many people hold each cluster as their main: those of `people`
+    (default: everyone) taken greedily by score, best first, on top of `main` (-1: none; default: nobody
+    has one) and `owners`."""
+    main = np.full(len(score), -1) if main is None else main.copy()
+    owners = np.zeros(score.shape[1], np.int64) if owners is None else owners.copy()
+    in_mask, exclusive = counts["in_mask"], counts["exclusive"]
+    qualified = body_like & (score > 0)
+    if people is not None:
+        qualified &= np.isin(np.arange(len(score)), people)[:, None]
+    people, clusters = np.nonzero(qualified)
     # Best score first; among equal scores, more mask points first.
     for i in np.lexsort((-in_mask[people, clusters], -score[people, clusters])):
         k, j = people[i], clusters[i]
@@ -309,8 +346,7 @@ def _main_clusters(
             continue
         main[k] = j
         owners[j] += 1
-    body_like[:, owners > 0] = False  # someone's main cluster is nobody's extra
-    return main, body_like
+    return main, owners
 
 
 def _grow(
@@ -422,7 +458,6 @@ def _score_clusters(
     """Each person's main cluster (-1: none), which clusters look like a body, and each (person, cluster)
     pair's median depth."""
     n_people, n_clusters, n_parts = len(skeletons), int(clusters.max()) + 1, len(BODY_PARTS)
-    exclusive = mask & (mask.sum(axis=0) == 1)
     group = np.arange(n_people)[:, None] * n_clusters + clusters[None, :]  # (P, M) person-cluster id
     size = n_people * n_clusters
 
@@ -433,11 +468,8 @@ def _score_clusters(
         ids = group[selection] * n_parts + g.part[selection]
         return np.bincount(ids, minlength=size * n_parts).reshape(n_people, n_clusters, n_parts) > 0
 
-    parts_excl, parts_any = parts_with(exclusive), parts_with(mask)
     weight = _part_weights(skeletons, n_parts, config)[:, None, :]  # (P, 1, parts)
-    coverage = (parts_excl * weight).sum(axis=2) + config.shared_weight * (
-        (parts_any & ~parts_excl) * weight
-    ).sum(axis=2)
+    parts_any = parts_with(mask)
     depth = _grouped_median(group[mask], np.broadcast_to(z, mask.shape)[mask], size).reshape(
         n_people, n_clusters
     )
@@ -445,25 +477,59 @@ def _score_clusters(
     own_core = np.bincount(group[core] * n_parts + g.part[core], minlength=size * n_parts).reshape(
         n_people, n_clusters, n_parts
     )
-    contradicted = np.zeros((n_people, n_clusters))
+    hypotheses = [np.flatnonzero(np.isfinite(depth[k])) for k in range(n_people)]
+
+    def evidence(exclusive: np.ndarray, rows: np.ndarray, explained: np.ndarray | None = None):
+        """(P, C) coverage and contradicted parts of `rows` with these exclusive points; points of
+        `explained` clusters hide nothing."""
+        parts_excl = parts_with(exclusive)
+        coverage = (parts_excl * weight).sum(axis=2) + config.shared_weight * (
+            (parts_any & ~parts_excl) * weight
+        ).sum(axis=2)
+        contradicted = np.zeros((n_people, n_clusters))
+        for k in rows:
+            if len(hypotheses[k]):
+                can_hide = None if explained is None else ~explained[clusters[core[k]]]
+                refuted, hidden = _contradicted_parts(
+                    z[core[k]], clusters[core[k]], g.part[k, core[k]], hypotheses[k], depth[k, hypotheses[k]],
+                    own_core[k, hypotheses[k]], config, can_hide,
+                )
+                contradicted[k, hypotheses[k]] = refuted + config.hidden_weight * hidden
+        return coverage, contradicted
+
+    exclusive = mask & (mask.sum(axis=0) == 1)
+    coverage, contradicted = evidence(exclusive, np.arange(n_people))
     fraction = np.zeros((n_people, n_clusters))
     for k in range(n_people):
-        hypotheses = np.flatnonzero(np.isfinite(depth[k]))
-        if len(hypotheses) == 0:
-            continue
-        refuted, hidden = _contradicted_parts(
-            z[core[k]], clusters[core[k]], g.part[k, core[k]], hypotheses, depth[k, hypotheses],
-            own_core[k, hypotheses], config,
-        )
-        contradicted[k, hypotheses] = refuted + config.hidden_weight * hidden
-        fraction[k, hypotheses] = mask_fraction(skeletons[k], depth[k, hypotheses], camera, config)
+        if len(hypotheses[k]):
+            fraction[k, hypotheses[k]] = mask_fraction(skeletons[k], depth[k, hypotheses[k]], camera, config)
     counts = {"in_box": count(g.box), "in_context": count(g.context), "in_mask": count(mask),
               "exclusive": count(exclusive)}
     surface = _surface_through(g, z, depth, config)
+    if expected_depth is not None:
+        expected_depth = np.asarray(expected_depth, np.float64).reshape(n_people, 2)
     main, body_like = _main_clusters(
-        counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent, surface, config,
-        None if expected_depth is None else np.asarray(expected_depth, np.float64).reshape(n_people, 2),
+        counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent, surface, config, expected_depth,
     )
+    missing = np.flatnonzero(main < 0)
+    if config.second_look and 0 < len(missing) < n_people:
+        # A second look for the people left without points, now that the others' bodies are placed:
+        # someone placed in front explains what hides them, and a placed person holds only the points
+        # in their own depth window, so the points behind them are no longer shared with them.
+        placed = np.flatnonzero(main >= 0)
+        holds = mask.copy()
+        with np.errstate(invalid="ignore"):
+            holds[placed] &= np.abs(z[None, :] - depth[placed, main[placed]][:, None]) <= config.body_depth_window_m
+        exclusive = mask & (holds.sum(axis=0) == 1)
+        explained = np.isin(np.arange(n_clusters), main[placed])
+        coverage, contradicted = evidence(exclusive, missing, explained)
+        counts["exclusive"] = count(exclusive)
+        score, second = _qualify(counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent,
+                                 surface, config, expected_depth)
+        owners = np.bincount(main[placed], minlength=n_clusters)
+        main, owners = _assign(score, second, counts, config, main, owners, missing)
+        body_like[missing] = second[missing]
+        body_like[:, owners > 0] = False
     return main, body_like, depth
 
 

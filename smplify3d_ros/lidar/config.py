@@ -59,6 +59,7 @@ class ExtractionConfig:
     refute_ratio: float  # a part refutes a cluster when its core holds this many times more points behind it
     hidden_parts: list[str]  # body parts (keypoints.BODY_PARTS) that count as hidden by points in front
     hidden_weight: float  # score lost per hidden part whose core shows that many times more points in front of it
+    second_look: bool  # people left without points are scored again once the others' bodies are placed
     depth_tolerance_m: float  # depth spread of one body: farther is behind it, nearer may join it
     secondary_link_m: float  # extra clusters join a body across gaps up to this (clustering space)
     body_depth_window_m: float  # a person's points lie within this depth of its median depth
