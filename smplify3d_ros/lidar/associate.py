@@ -59,9 +59,11 @@ two people touching in 3D form one cluster, yet each has their own region of it.
 a main cluster get a second look (`second_look`) once the others are placed: a placed person's body
 hides nothing (what their cluster covers of a torso behind them is them, not a reason against the
 person behind), and a placed person holds only the points within `body_depth_window_m` of their own
-depth, so points metres behind them count as exclusively the hidden person's. A person half behind
-another, whose own points all fell in the front person's mask too, otherwise scored below zero on
-every cluster and was fitted from the image alone. Further clusters that
+depth, so points metres behind them count as exclusively the hidden person's; and a part refutes or is
+hidden only with at least `second_look_min_votes` points (a VLP-16 ring through a gap puts one wall
+point in the core of a part the LiDAR missed). A person half behind another, whose own points all fell
+in the front person's mask too, otherwise scored below zero on every cluster and was fitted from the
+image alone. Further clusters that
 are nobody's main and qualify but for the score join: those within `depth_tolerance_m` of the main
 cluster's depth (an arm or the legs split off by a gap or an occluder), then, transitively, those within
 `body_depth_window_m` in depth that come within `secondary_link_m` of a joined one (knees or arms in
@@ -194,7 +196,7 @@ def _grouped_median(groups: np.ndarray, values: np.ndarray, n_groups: int) -> np
 def _contradicted_parts(
     z: np.ndarray, clusters: np.ndarray, parts: np.ndarray, hypotheses: np.ndarray,
     hypothesis_depth: np.ndarray, own_core: np.ndarray, config: ExtractionConfig,
-    can_hide: np.ndarray | None = None,
+    can_hide: np.ndarray | None = None, min_votes: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(H,) for each hypothesis "cluster j is this person": body parts that refute it, and parts that
     it would have hidden.
@@ -211,7 +213,7 @@ def _contradicted_parts(
     Legs are not counted: a detector reports legs behind a box with confidence (hallucinated).
     z, clusters, parts: depth, cluster and body part of the person's core points; own_core: (H, parts)
     core points of each hypothesis cluster per part; can_hide: optional (n,) bool, the core points that
-    count as hiding a part (default: all).
+    count as hiding a part (default: all); min_votes: the fewest points that refute or hide a part.
     """
     if len(hypotheses) == 0 or len(z) == 0:
         return np.zeros(len(hypotheses)), np.zeros(len(hypotheses))
@@ -224,7 +226,8 @@ def _contradicted_parts(
 
     def outvoted(selection: np.ndarray, part_names: list[str]) -> np.ndarray:
         counted = np.isin(np.arange(own_core.shape[1]), [PART_INDEX[p] for p in part_names])
-        return ((selection.astype(np.float64) @ one_hot > config.refute_ratio * own_core) & counted).sum(axis=1)
+        votes = selection.astype(np.float64) @ one_hot
+        return ((votes > config.refute_ratio * own_core) & (votes >= min_votes) & counted).sum(axis=1)
 
     return outvoted(behind, config.refuting_parts), outvoted(before, config.hidden_parts)
 
@@ -479,9 +482,9 @@ def _score_clusters(
     )
     hypotheses = [np.flatnonzero(np.isfinite(depth[k])) for k in range(n_people)]
 
-    def evidence(exclusive: np.ndarray, rows: np.ndarray, explained: np.ndarray | None = None):
+    def evidence(exclusive: np.ndarray, rows: np.ndarray, explained: np.ndarray | None = None, min_votes: int = 1):
         """(P, C) coverage and contradicted parts of `rows` with these exclusive points; points of
-        `explained` clusters hide nothing."""
+        `explained` clusters hide nothing, and fewer than `min_votes` points neither refute nor hide."""
         parts_excl = parts_with(exclusive)
         coverage = (parts_excl * weight).sum(axis=2) + config.shared_weight * (
             (parts_any & ~parts_excl) * weight
@@ -492,7 +495,7 @@ def _score_clusters(
                 can_hide = None if explained is None else ~explained[clusters[core[k]]]
                 refuted, hidden = _contradicted_parts(
                     z[core[k]], clusters[core[k]], g.part[k, core[k]], hypotheses[k], depth[k, hypotheses[k]],
-                    own_core[k, hypotheses[k]], config, can_hide,
+                    own_core[k, hypotheses[k]], config, can_hide, min_votes,
                 )
                 contradicted[k, hypotheses[k]] = refuted + config.hidden_weight * hidden
         return coverage, contradicted
@@ -514,15 +517,16 @@ def _score_clusters(
     missing = np.flatnonzero(main < 0)
     if config.second_look and 0 < len(missing) < n_people:
         # A second look for the people left without points, now that the others' bodies are placed:
-        # someone placed in front explains what hides them, and a placed person holds only the points
-        # in their own depth window, so the points behind them are no longer shared with them.
+        # someone placed in front explains what hides them, a placed person holds only the points in
+        # their own depth window, so the points behind them are no longer shared with them, and a
+        # single point behind or in front of a part (a ring through a gap) neither refutes nor hides.
         placed = np.flatnonzero(main >= 0)
         holds = mask.copy()
         with np.errstate(invalid="ignore"):
             holds[placed] &= np.abs(z[None, :] - depth[placed, main[placed]][:, None]) <= config.body_depth_window_m
         exclusive = mask & (holds.sum(axis=0) == 1)
         explained = np.isin(np.arange(n_clusters), main[placed])
-        coverage, contradicted = evidence(exclusive, missing, explained)
+        coverage, contradicted = evidence(exclusive, missing, explained, config.second_look_min_votes)
         counts["exclusive"] = count(exclusive)
         score, second = _qualify(counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent,
                                  surface, config, expected_depth)

@@ -60,6 +60,7 @@ class ExtractionConfig:
     hidden_parts: list[str]  # body parts (keypoints.BODY_PARTS) that count as hidden by points in front
     hidden_weight: float  # score lost per hidden part whose core shows that many times more points in front of it
     second_look: bool  # people left without points are scored again once the others' bodies are placed
+    second_look_min_votes: int  # ...and there a part refutes or is hidden only by at least this many points
     depth_tolerance_m: float  # depth spread of one body: farther is behind it, nearer may join it
     secondary_link_m: float  # extra clusters join a body across gaps up to this (clustering space)
     body_depth_window_m: float  # a person's points lie within this depth of its median depth
@@ -109,6 +110,7 @@ class ExtractionConfig:
         require(0.0 <= self.refute_min_score <= 1.0, "refute_min_score must be in [0, 1]")
         require(self.refute_ratio >= 1.0, "refute_ratio must be >= 1")
         require(self.hidden_weight >= 0.0, "hidden_weight must be >= 0")
+        require(self.second_look_min_votes >= 1, "second_look_min_votes must be >= 1")
         require(self.depth_tolerance_m >= 0.0, "depth_tolerance_m must be >= 0")
         require(self.secondary_link_m >= 0.0, "secondary_link_m must be >= 0")
         require(self.body_depth_window_m > 0.0, "body_depth_window_m must be > 0")
