@@ -482,7 +482,9 @@ def _score_clusters(
     )
     hypotheses = [np.flatnonzero(np.isfinite(depth[k])) for k in range(n_people)]
 
-    def evidence(exclusive: np.ndarray, rows: np.ndarray, explained: np.ndarray | None = None, min_votes: int = 1):
+    def evidence(
+        exclusive: np.ndarray, rows: np.ndarray, explained: np.ndarray | None = None, min_votes: int = 1,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(P, C) coverage and contradicted parts of `rows` with these exclusive points; points of
         `explained` clusters hide nothing, and fewer than `min_votes` points neither refute nor hide."""
         parts_excl = parts_with(exclusive)
