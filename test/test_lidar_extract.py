@@ -408,6 +408,24 @@ def test_an_expected_depth_keeps_a_person_off_clusters_outside_it():
     assert elsewhere.people[0].num_points == 0
 
 
+def robot_scene_person(seed: int, n_people: int, person: int, distance_range=(1.5, 15.0)):
+    """A simulated robot-path scene of the bench (VLP-16) with `n_people` people: (the scene, `person`'s
+    index among its detections, the indices of the scan points on `person`)."""
+    from smplify3d_ros.sim.config import load_sim_config
+    from smplify3d_ros.sim.world import simulate_scenario
+
+    sim = simulate_scenario(seed, load_sim_config(), "robot", sensor="vlp16", n_people=n_people,
+                            distance_range=distance_range)
+    return sim, list(sim.frame.person_ids).index(person), np.flatnonzero(sim.point_labels == person)
+
+
+def extracted(sim, k: int, config: ExtractionConfig):
+    """What the extraction with `config` gives detection `k` of a simulated scene."""
+    from smplify3d_ros.frame_fitter import extract_frame_people
+
+    return extract_frame_people(sim.frame, config)[1].people[k]
+
+
 def test_a_few_wall_points_beside_a_thin_part_do_not_outvote_the_body():
     """A simulated robot-path scene (seed 8 of the bench's tuning seeds, 2-8 m): a child running 7.2 m
     out with a wall 3.3 m behind. Beside the child's neck and thigh the core shows a few more wall points
@@ -416,13 +434,7 @@ def test_a_few_wall_points_beside_a_thin_part_do_not_outvote_the_body():
     wall would also hide the child's torso and head, which the hidden-part penalty counts against it,
     and it goes on past both sides of the child's box, which the surface test sees: the counterfactual
     switches both off.)"""
-    from smplify3d_ros.frame_fitter import extract_frame_people
-    from smplify3d_ros.sim.config import load_sim_config
-    from smplify3d_ros.sim.world import simulate_scenario
-
-    sim = simulate_scenario(8, load_sim_config(), "robot", sensor="vlp16", n_people=3, distance_range=(2.0, 8.0))
-    child = list(sim.frame.person_ids).index(0)
-    own = np.flatnonzero(sim.point_labels == 0)
+    sim, child, own = robot_scene_person(8, 3, 0, distance_range=(2.0, 8.0))
     assert len(own) >= 30
     for config, keeps_own in (
         (make_config(refute_ratio=1.0, hidden_weight=0.0, surface_min_points=10**6), False),
@@ -430,8 +442,7 @@ def test_a_few_wall_points_beside_a_thin_part_do_not_outvote_the_body():
         (make_config(refute_ratio=1.0), True),
         (CONFIG, True),
     ):
-        _, result = extract_frame_people(sim.frame, config)
-        taken = result.people[child].indices
+        taken = extracted(sim, child, config).indices
         correct = np.isin(taken, own)
         found = len(taken) > 0 and correct.mean() > 0.9 and len(taken) >= 0.9 * len(own)
         assert found == keeps_own, (config.refute_ratio, len(taken), int(correct.sum()))
@@ -445,13 +456,7 @@ def test_a_wall_patch_that_would_hide_the_torso_and_head_is_not_the_person():
     would hide the torso and head their keypoints show; with the hidden-part penalty the body wins. (The
     wall also goes on past both sides of the box, which the surface test sees; the counterfactual
     switches that off too, and either one alone keeps the body.)"""
-    from smplify3d_ros.frame_fitter import extract_frame_people
-    from smplify3d_ros.sim.config import load_sim_config
-    from smplify3d_ros.sim.world import simulate_scenario
-
-    sim = simulate_scenario(29, load_sim_config(), "robot", sensor="vlp16", n_people=3, distance_range=(1.5, 15.0))
-    leaning = list(sim.frame.person_ids).index(2)
-    own = np.flatnonzero(sim.point_labels == 2)
+    sim, leaning, own = robot_scene_person(29, 3, 2)
     assert len(own) >= 15
     for config, keeps_own in (
         (make_config(hidden_weight=0.0, surface_min_points=10**6), False),
@@ -459,8 +464,7 @@ def test_a_wall_patch_that_would_hide_the_torso_and_head_is_not_the_person():
         (make_config(surface_min_points=10**6), True),
         (CONFIG, True),
     ):
-        _, result = extract_frame_people(sim.frame, config)
-        taken = result.people[leaning].indices
+        taken = extracted(sim, leaning, config).indices
         found = np.isin(own, taken).mean() >= 0.9
         assert found == keeps_own, (config.hidden_weight, len(taken), int(np.isin(taken, own).sum()))
 
@@ -473,16 +477,10 @@ def test_a_wall_going_on_past_both_sides_of_a_far_box_is_not_the_person(seed, pe
     of the wall by the person's shadow) scored higher than the body's few points: the fit stood 3 m
     behind the person. The wall goes on past both sides of the box; with the surface test it is not
     taken."""
-    from smplify3d_ros.frame_fitter import extract_frame_people
-    from smplify3d_ros.sim.config import load_sim_config
-    from smplify3d_ros.sim.world import simulate_scenario
-
-    sim = simulate_scenario(seed, load_sim_config(), "robot", sensor="vlp16", n_people=3, distance_range=(1.5, 15.0))
-    k = list(sim.frame.person_ids).index(person)
+    sim, k, _ = robot_scene_person(seed, 3, person)
     depth = float(np.asarray(sim.people[person].keypoints3d)[[KP["left_hip"], KP["right_hip"]], 2].mean())
     for config, on_the_wall in ((make_config(surface_min_points=10**6), True), (CONFIG, False)):
-        _, result = extract_frame_people(sim.frame, config)
-        points = result.people[k].points
+        points = extracted(sim, k, config).points
         behind = len(points) > 0 and float(np.median(points[:, 2])) > depth + 1.0
         assert behind == on_the_wall, (len(points), np.median(points[:, 2]) if len(points) else None, depth)
 
@@ -505,18 +503,10 @@ def test_an_occluder_over_the_joints_seen_with_low_confidence_is_not_the_person(
     10-11 m out; the detector still reports the hidden joints, with low confidence, and the occluder
     fills the mask there. Counting every covered part as 1, the occluder won (the fit stood 2.4 m and
     7 m in front of the person); weighted by the parts' keypoint scores, the person's own points win."""
-    from smplify3d_ros.frame_fitter import extract_frame_people
-    from smplify3d_ros.sim.config import load_sim_config
-    from smplify3d_ros.sim.world import simulate_scenario
-
-    sim = simulate_scenario(seed, load_sim_config(), "robot", sensor="vlp16", n_people=n_people,
-                            distance_range=(1.5, 15.0))
-    k = list(sim.frame.person_ids).index(person)
-    own = np.flatnonzero(sim.point_labels == person)
+    sim, k, own = robot_scene_person(seed, n_people, person)
     assert len(own) >= 10
     for config, keeps_own in ((make_config(coverage_full_score=1e-6), False), (CONFIG, True)):
-        _, result = extract_frame_people(sim.frame, config)
-        taken = result.people[k].indices
+        taken = extracted(sim, k, config).indices
         found = len(taken) > 0 and np.isin(taken, own).mean() > 0.9
         assert found == keeps_own, (len(taken), int(np.isin(taken, own).sum()), len(own))
 
@@ -529,17 +519,10 @@ def test_a_person_behind_another_gets_their_own_points_on_a_second_look(seed, pe
     it: every cluster of theirs scored below zero and they were fitted from the image alone (569 and
     790 mm off). Once the front person's body is placed, it hides nothing and cannot hold points 2-3 m
     behind it: on the second look they get exactly their own points."""
-    from smplify3d_ros.frame_fitter import extract_frame_people
-    from smplify3d_ros.sim.config import load_sim_config
-    from smplify3d_ros.sim.world import simulate_scenario
-
-    sim = simulate_scenario(seed, load_sim_config(), "robot", sensor="vlp16", n_people=3, distance_range=(1.5, 15.0))
-    k = list(sim.frame.person_ids).index(person)
-    own = np.flatnonzero(sim.point_labels == person)
+    sim, k, own = robot_scene_person(seed, 3, person)
     assert len(own) >= 10
     for config, keeps_own in ((make_config(second_look=False), False), (CONFIG, True)):
-        _, result = extract_frame_people(sim.frame, config)
-        taken = result.people[k].indices
+        taken = extracted(sim, k, config).indices
         found = len(taken) >= 0.9 * len(own) and np.isin(taken, own).mean() > 0.9
         assert found == keeps_own, (config.second_look, len(taken), int(np.isin(taken, own).sum()), len(own))
 
@@ -551,17 +534,10 @@ def test_one_point_behind_a_part_does_not_refute_on_the_second_look():
     every cluster of theirs, one wall point for the thigh (a ring through a gap): fitted from the image
     alone, 1.5 m off. On the second look a part refutes only with at least two points behind it, and
     the person gets 17 of their points (the two clusters on their legs), none of anyone else's."""
-    from smplify3d_ros.frame_fitter import extract_frame_people
-    from smplify3d_ros.sim.config import load_sim_config
-    from smplify3d_ros.sim.world import simulate_scenario
-
-    sim = simulate_scenario(167, load_sim_config(), "robot", sensor="vlp16", n_people=2, distance_range=(1.5, 15.0))
-    k = list(sim.frame.person_ids).index(1)
-    own = np.flatnonzero(sim.point_labels == 1)
+    sim, k, own = robot_scene_person(167, 2, 1)
     assert len(own) >= 20
     for config, keeps_own in ((make_config(second_look_min_votes=1), False), (CONFIG, True)):
-        _, result = extract_frame_people(sim.frame, config)
-        taken = result.people[k].indices
+        taken = extracted(sim, k, config).indices
         found = len(taken) >= 15 and np.isin(taken, own).mean() > 0.9
         assert found == keeps_own, (config.second_look_min_votes, len(taken), int(np.isin(taken, own).sum()))
 
