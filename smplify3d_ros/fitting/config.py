@@ -95,6 +95,7 @@ class InitConfig:
     refine_pose_weight: float
     refine_chamfer: float
     refine_keypoint_depth: float
+    refine_free_space: float
     refine_max_vertices: int
 
     def __post_init__(self) -> None:
@@ -102,7 +103,8 @@ class InitConfig:
                      "limb_depth_band", "limb_depth_sigma", "torso_depth_band", "lidar_heading_min_spread"):
             require(getattr(self, name) > 0, f"{name} must be > 0")
         for name in ("lidar_surface_offset", "ankle_height", "torso_box_pad",
-                     "limb_surface_offset", "refine_chamfer", "refine_keypoint_depth", "hypothesis_merge_deg"):
+                     "limb_surface_offset", "refine_chamfer", "refine_keypoint_depth", "hypothesis_merge_deg",
+                     "refine_free_space"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(0.0 <= self.points_min_depth_ratio < 1.0, "points_min_depth_ratio must be in [0, 1)")
         require(self.refine_iterations >= 0, "refine_iterations must be >= 0")
@@ -144,11 +146,14 @@ class LossWeights:
     # warm start: each joint moved on at its velocity over the last two fits), per metre, on their mean
     # (w² · mean_k |J_k − J_k,pred|²); 0: free
     joint_motion: float
+    # keeps the body out of the space the LiDAR's beams crossed, in the stages with L_3D that move the
+    # pose (w² · L_free: each blocked beam's shortfall², m², over the person's points; fitting/free_space.py)
+    free_space: float
 
     def __post_init__(self) -> None:
         for name in ("pose", "bend", "shape", "chamfer", "chamfer_final", "chamfer_scale", "occlusion",
                      "init_pose", "neutral", "upright", "image_depth", "points_depth", "motion",
-                     "joint_motion"):
+                     "joint_motion", "free_space"):
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(self.sigma_px > 0 and self.sigma_px_final > 0, "sigma_px values must be > 0")
 
@@ -174,6 +179,7 @@ class OptimizerProfile:
     pixel_reference_px: float
     neutral_reference_px: float  # weights.neutral × max(1, this / the person's expected pixel height); 0: constant
     joint_motion_relative: bool  # the joint motion hold on the joints about their hip midpoint (False: where they are)
+    free_space_margin_m: float  # a beam is blocked when the body is nearer than its point less this (m)
 
     def __post_init__(self) -> None:
         require(self.lr > 0, "lr must be > 0")
@@ -187,6 +193,7 @@ class OptimizerProfile:
         require(self.early_stop_patience > 0, "early_stop_patience must be > 0")
         require(0.0 <= self.chamfer_vertex_weight <= 1.0, "chamfer_vertex_weight must be in [0, 1]")
         require(self.keypoint_alignment in ("hips", "centroid"), "keypoint_alignment must be hips or centroid")
+        require(self.free_space_margin_m >= 0, "free_space_margin_m must be >= 0")
         require(self.chamfer_max_vertices >= 0 and self.chamfer_max_points >= 0,
                 "chamfer_max_vertices / chamfer_max_points must be >= 0 (0 = all)")
 

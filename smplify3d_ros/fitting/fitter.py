@@ -12,6 +12,7 @@ Levenberg-Marquardt (`fitting.solver`) on the same objective, as the profile say
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 from dataclasses import dataclass
 
@@ -20,6 +21,7 @@ import torch
 
 from smplify3d_ros.body import BodyModel, load_body_model
 from smplify3d_ros.body.base import PARAM_FIELDS
+from smplify3d_ros.fitting import free_space
 from smplify3d_ros.fitting import init as initializer
 from smplify3d_ros.fitting.config import FittingConfig
 from smplify3d_ros.fitting.icp import align_mesh_to_points
@@ -135,6 +137,7 @@ class Fitter:
         zeros = torch.zeros(1, len(self.model.joint_names), 3, dtype=self.dtype)
         self._neutral_pose = self.model.anatomical_to_pose(zeros, from_neutral=True)[0].cpu().double().numpy()
         self.part_of_face_np = self.model.part_of_face.cpu().numpy()
+        self._around = free_space.vertex_faces(self.faces_np, int(self.faces_np.max()) + 1)
 
     def fit(
         self,
@@ -486,7 +489,33 @@ class Fitter:
                 batch.keypoint_depth, dtype=self.dtype, device=dev),
             predicted_transl=self._predicted_transl(batch),
             predicted_keypoints=self._predicted_keypoints(batch),
+            lidar_origin=torch.as_tensor(batch.lidar_origin, dtype=self.dtype, device=dev),
+            cast_beams=(functools.partial(self._blocked_beams, batch, vertex_rows, point_rows)
+                        if opt.weights.free_space > 0 and batch.use_lidar.any() else None),
         )
+
+    def _blocked_beams(self, batch: Batch, vertex_rows: list[np.ndarray], point_rows: list[np.ndarray],
+                       state: FitState) -> free_space.BlockedBeams | None:
+        """The beams (to `point_rows`) that the bodies of `state` block (`free_space.blocked_beams`), each
+        tied to the nearest of its person's `vertex_rows` (their L_3D vertices); None without any."""
+        origin, margin = batch.lidar_origin, self.config.optimizer.free_space_margin_m
+        verts = self._forward(state).vertices.cpu().double().numpy()
+        masks = self._visible_masks(batch, verts)
+        found = []
+        for i in range(batch.size):
+            hits, direction, limit = free_space.blocked_beams(verts[i], self.faces_np, self._around, masks[i],
+                                                              point_rows[i], origin, margin)
+            row, limit = free_space.tie_to_vertices(verts[i][vertex_rows[i]], hits, direction, limit, origin)
+            found.append((row, direction, limit))
+        if not any(len(f[0]) for f in found):
+            return None
+        rows, mask = _pad_rows([f[0] for f in found], 0, 0)
+        direction, _ = _pad_rows([f[1] for f in found], 3, 0.0)
+        limit = _pad_rows([f[2][:, None] for f in found], 1, 0.0)[0][..., 0]
+        dev, dt = self.device, self.dtype
+        return free_space.BlockedBeams(
+            torch.as_tensor(rows, device=dev), torch.as_tensor(direction, dtype=dt, device=dev),
+            torch.as_tensor(limit, dtype=dt, device=dev), torch.as_tensor(mask, device=dev))
 
     def _predicted_transl(self, batch: Batch) -> torch.Tensor | None:
         """(B, 3) the translations the motion hold keeps each person near: the start's, for people whose
@@ -554,7 +583,7 @@ def _pick_hypotheses(fits: list[BodyFit], owner: np.ndarray, people: int, margin
 
 def _refine_profile(cfg: FittingConfig):
     opt = cfg.optimizer
-    weights = dataclasses.replace(opt.weights, pose=cfg.init.refine_pose_weight)
+    weights = dataclasses.replace(opt.weights, pose=cfg.init.refine_pose_weight, free_space=cfg.init.refine_free_space)
     # Adam runs every refinement step (its loss creeps down for long); LM stops each person on its own
     tol = opt.early_stop_rel_tol if opt.optimizer == "lm" else 0.0
     return dataclasses.replace(opt, lr=cfg.init.refine_lr, weights=weights, early_stop_rel_tol=tol)

@@ -4,11 +4,13 @@ observations (`FitProblem`), row i of every tensor being person i; `posed_rows` 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import torch
 
 from smplify3d_ros.body.base import PARAM_FIELDS, BodyModel, BodyOutput
+from smplify3d_ros.fitting.free_space import BlockedBeams
 
 PARAM_NAMES = PARAM_FIELDS  # FitState fields, in BodyModel.forward order
 
@@ -80,6 +82,10 @@ class FitProblem:
     depth_measured: torch.Tensor | None = None  # (B,) bool: people without L_3D whose few points gave the depth
     predicted_transl: torch.Tensor | None = None  # (B, 3) the motion hold's translations (NaN rows: none)
     predicted_keypoints: torch.Tensor | None = None  # (B, 17, 3) the joint motion hold's joints (NaN rows: none)
+    lidar_origin: torch.Tensor | None = None  # (3,) the LiDAR in the camera frame: where its beams start
+    # (state) -> the beams its bodies block short of their points (`weights.free_space`), None: not cast
+    cast_beams: Callable[[FitState], BlockedBeams | None] | None = None
+    blocked: BlockedBeams | None = None  # the beams the last cast found blocked
 
     def __post_init__(self) -> None:
         if self.empty_subset is None:
@@ -98,7 +104,7 @@ class FitProblem:
 
     def take(self, rows: torch.Tensor) -> FitProblem:
         """The problem of the people `rows` (repeats allowed): the shape Jacobian's perturbed copies."""
-        shared = ("K", "vertex_subset", "empty_subset")
+        shared = ("K", "vertex_subset", "empty_subset", "lidar_origin", "cast_beams")
         picked = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "_copies"}
         for name, value in picked.items():
             if name not in shared and value is not None:

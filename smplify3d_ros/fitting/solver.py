@@ -29,7 +29,7 @@ import roma
 import torch
 
 from smplify3d_ros.body.base import BodyModel
-from smplify3d_ros.fitting import losses
+from smplify3d_ros.fitting import free_space, losses
 from smplify3d_ros.fitting.config import OptimizerProfile
 from smplify3d_ros.fitting.problem import posed_rows
 
@@ -241,6 +241,29 @@ def chamfer_block(body: Linearized, problem, stage, profile: OptimizerProfile, l
         acc.add(r.flatten(1), J.flatten(1, 2))
 
 
+def uses_free_space(stage, problem, profile: OptimizerProfile) -> bool:
+    """The stage keeps the body out of the beams' free space: it has L_3D, beams to cast and moves the
+    pose. Only the limbs answer a blocked beam: in a stage that moves the translation alone, the whole
+    body stepped back from a hand held towards the sensor (tuning seed 1: 18 cm, off its points)."""
+    return (profile.weights.free_space > 0 and problem.cast_beams is not None and "pose" in stage.params
+            and uses_chamfer(stage, problem))
+
+
+def free_space_block(body: Linearized, problem, stage, profile: OptimizerProfile, layout: Layout,
+                     acc: Residuals) -> None:
+    """L_free's residuals: each blocked beam's shortfall (`free_space.shortfall`), its Jacobian its
+    vertex's along the beam."""
+    if not uses_free_space(stage, problem, profile) or problem.blocked is None:
+        return
+    beams = problem.blocked
+    weight = _w(profile.weights.free_space, profile) * problem.use_lidar.to(body.vertices.dtype)
+    m = problem.point_mask.sum(-1).clamp(min=1).to(weight.dtype)
+    short = free_space.shortfall(body.vertices, beams, problem.lidar_origin)  # (B, k)
+    scale = (weight / m).sqrt()[:, None] * (short < 0)
+    J = scale[..., None] * torch.einsum("bkc,bkcp->bkp", beams.direction, body.vertex_jacobian(beams.rows, layout))
+    acc.add(scale * short, J)
+
+
 def prior_block(model: BodyModel, state, problem, stage, profile: OptimizerProfile, layout: Layout,
                 acc: Residuals) -> None:
     """The priors' residuals and their Jacobians (they depend on pose and shape only)."""
@@ -428,6 +451,7 @@ def normal_equations(model: BodyModel, state, problem, stage, profile: Optimizer
     keypoint_block(body, problem, stage, acc)
     if use_chamfer:
         chamfer_block(body, problem, stage, profile, layout, acc)
+        free_space_block(body, problem, stage, profile, layout, acc)
     keypoint_depth_block(body, problem, stage, profile, acc)
     depth_hold_block(state, problem, stage, profile, layout, acc)
     motion_hold_block(state, problem, stage, profile, layout, acc)

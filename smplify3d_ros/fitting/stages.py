@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import torch
 
 from smplify3d_ros.body.base import BodyModel, BodyOutput
-from smplify3d_ros.fitting import losses, solver
+from smplify3d_ros.fitting import free_space, losses, solver
 from smplify3d_ros.fitting.config import LossWeights, OptimizerProfile
 from smplify3d_ros.fitting.problem import PARAM_NAMES, FitProblem, FitState, posed_rows
 
@@ -116,6 +116,9 @@ def stage_loss(
         chamfer = losses.chamfer_loss(out.vertices, problem.vertex_mask, problem.points, problem.point_mask,
                                       profile.chamfer_vertex_weight, indices)
         loss = loss + _w(stage.chamfer_weight, profile) * chamfer * problem.use_lidar
+    if solver.uses_free_space(stage, problem, profile) and problem.blocked is not None:
+        loss = loss + _w(weights.free_space, profile) * problem.use_lidar * free_space.free_space_loss(
+            out.vertices, problem.blocked, problem.lidar_origin, problem.point_mask)
     return loss
 
 
@@ -152,7 +155,10 @@ def run_stage(
 
     Each person keeps the best finite state the stage reached. `diverged` (B,) is updated in place:
     a person whose loss becomes non-finite or exceeds `divergence_factor` times its start is frozen.
+    A stage with L_free casts the beams against the body as it starts (`FitProblem.cast_beams`).
     """
+    if solver.uses_free_space(stage, problem, profile):
+        problem.blocked = problem.cast_beams(state)
     if stage.iterations == 0:
         with torch.no_grad():
             return 0, stage_loss(model, state, problem, stage, profile)
