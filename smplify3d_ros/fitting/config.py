@@ -97,6 +97,7 @@ class InitConfig:
     refine_keypoint_depth: float
     refine_free_space: float
     refine_max_vertices: int
+    start_elbow_flexion_deg: float
 
     def __post_init__(self) -> None:
         for name in ("body_height", "torso_height", "shoulder_width", "hip_width", "refine_lr", "limb_radius",
@@ -108,6 +109,7 @@ class InitConfig:
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(0.0 <= self.points_min_depth_ratio < 1.0, "points_min_depth_ratio must be in [0, 1)")
         require(self.refine_iterations >= 0, "refine_iterations must be >= 0")
+        require(0 <= self.start_elbow_flexion_deg <= 150, "start_elbow_flexion_deg must be in [0, 150]")
         require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")
         require(self.hypothesis_iterations >= 0, "hypothesis_iterations must be >= 0 (at most refine_iterations run)")
         require(self.heading_hypotheses >= 1, "heading_hypotheses must be >= 1")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -132,12 +133,22 @@ class Fitter:
         self.model = model if model is not None else load_body_model(config.body.model, config.body, str(self.device))
         self.dtype = self.model.dtype
         self.faces_np = self.model.faces.cpu().numpy()
-        # the built-in initializer starts from the anatomical neutral (standing, arms hanging, limbs
-        # straight), not from the model's rest pose (Anny's is an A-pose with bent elbows)
-        zeros = torch.zeros(1, len(self.model.joint_names), 3, dtype=self.dtype)
-        self._neutral_pose = self.model.anatomical_to_pose(zeros, from_neutral=True)[0].cpu().double().numpy()
+        self._start_pose = self._builtin_start_pose()
         self.part_of_face_np = self.model.part_of_face.cpu().numpy()
         self._around = free_space.vertex_faces(self.faces_np, int(self.faces_np.max()) + 1)
+
+    def _builtin_start_pose(self) -> np.ndarray:
+        """(J, 3) pose the built-in initializer starts every person from: the anatomical neutral
+        (standing, arms hanging, legs straight), not the model's rest pose (Anny's is an A-pose), with the
+        elbows flexed by `init.start_elbow_flexion_deg`. A straight elbow is a singular start: there, no
+        small turn of the upper arm moves the wrist, and the solver leaves a forearm the image shows
+        across the body or held forward pointing at the camera (docs/benchmarks.md, "A bent elbow")."""
+        names = list(self.model.joint_names)
+        angles = torch.zeros(1, len(names), 3, dtype=self.dtype)
+        for name in ("left_elbow", "right_elbow"):
+            if name in names:
+                angles[0, names.index(name), 0] = math.radians(self.config.init.start_elbow_flexion_deg)
+        return self.model.anatomical_to_pose(angles, from_neutral=True)[0].cpu().double().numpy()
 
     def fit(
         self,
@@ -219,7 +230,7 @@ class Fitter:
                                                         len(p.points) >= cfg.min_points_depth)
             for root, pelvis in hypotheses:
                 batch.hypotheses[i].append(BodyParams(self.model.name, mean_shape.copy(),
-                                                      self._neutral_pose.copy(), root, pelvis))
+                                                      self._start_pose.copy(), root, pelvis))
             if p.hypothesis is not None and p.hypothesis.model == self.model.name:
                 batch.hypotheses[i].append(p.hypothesis.copy())
             params.append(batch.hypotheses[i][0])
