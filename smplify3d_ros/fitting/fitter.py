@@ -134,6 +134,7 @@ class Fitter:
         self.dtype = self.model.dtype
         self.faces_np = self.model.faces.cpu().numpy()
         self._start_pose = self._builtin_start_pose()
+        self._keypoints_only = torch.zeros(1, dtype=torch.long, device=self.device)
         self.part_of_face_np = self.model.part_of_face.cpu().numpy()
         self._around = free_space.vertex_faces(self.faces_np, int(self.faces_np.max()) + 1)
 
@@ -245,7 +246,8 @@ class Fitter:
         their `transl` says (the model's rotation centre may not be its pelvis: SMPL)."""
         state = FitState.from_params(self.model, params)
         if builtin.any():
-            out = self._forward(state)
+            with torch.no_grad():  # keypoints only: one vertex asked for, not the whole mesh
+                out = self.model(*state.body_args(self.model), vertex_index=self._keypoints_only)
             pelvis_now = 0.5 * (out.keypoints[:, 11] + out.keypoints[:, 12])
             rows = torch.as_tensor(np.flatnonzero(builtin), device=self.device)
             with torch.no_grad():
