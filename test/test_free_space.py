@@ -119,3 +119,18 @@ def test_the_mesh_stage_moves_an_arm_out_of_the_space_its_beams_crossed(anny_mod
     print(f"right wrist depth: start {start_z:.3f} m, fitted without L_free {wrist_z[0.0]:.3f}, "
           f"with {wrist_z[600.0]:.3f}")
     assert wrist_z[600.0] > wrist_z[0.0] + 0.05  # pushed back, away from the sensor
+
+
+def test_the_init_refinement_casts_the_beams_with_its_own_weight_alone(anny_model, rng, monkeypatch):
+    # init.refine_free_space works whatever the profile's own free-space weight is
+    obs, K = _arm_forward_person(anny_model, rng)
+    obs = PersonObservation(obs.person_id, obs.keypoints, obs.bbox, obs.points)  # the built-in init
+    casts = []
+    cast = Fitter._blocked_beams
+    monkeypatch.setattr(Fitter, "_blocked_beams", lambda self, *args: casts.append(1) or cast(self, *args))
+    for refine in (0.0, 600.0):
+        casts.clear()
+        config = load_config(overrides={"fitting": {"profiles": {"robot": {"weights": {"free_space": 0.0}}},
+                                                     "init": {"refine_free_space": refine}}})
+        Fitter(config.fitting, anny_model).fit([obs], K)
+        assert bool(casts) == (refine > 0)

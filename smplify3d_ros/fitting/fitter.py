@@ -246,8 +246,7 @@ class Fitter:
         their `transl` says (the model's rotation centre may not be its pelvis: SMPL)."""
         state = FitState.from_params(self.model, params)
         if builtin.any():
-            with torch.no_grad():  # keypoints only: one vertex asked for, not the whole mesh
-                out = self.model(*state.body_args(self.model), vertex_index=self._keypoints_only)
+            out = self._forward(state, self._keypoints_only)  # keypoints only: one vertex, not the mesh
             pelvis_now = 0.5 * (out.keypoints[:, 11] + out.keypoints[:, 12])
             rows = torch.as_tensor(np.flatnonzero(builtin), device=self.device)
             with torch.no_grad():
@@ -437,9 +436,9 @@ class Fitter:
     def _tensor(self, rows: list[np.ndarray]) -> torch.Tensor:
         return torch.as_tensor(np.stack(rows), dtype=self.dtype, device=self.device)
 
-    def _forward(self, state: FitState):
+    def _forward(self, state: FitState, vertex_index: torch.Tensor | None = None):
         with torch.no_grad():
-            return self.model(*state.body_args(self.model))
+            return self.model(*state.body_args(self.model), vertex_index=vertex_index)
 
     def _move(self, state: FitState, i: int, T: np.ndarray, vertices: np.ndarray | None = None) -> None:
         """Move person i's body by the rigid transform T (camera frame), and its row of `vertices` with it."""
@@ -503,8 +502,10 @@ class Fitter:
             predicted_transl=self._predicted_transl(batch),
             predicted_keypoints=self._predicted_keypoints(batch),
             lidar_origin=torch.as_tensor(batch.lidar_origin, dtype=self.dtype, device=dev),
+            # cast only by a stage whose own weights use L_free (`solver.uses_free_space`): the init's
+            # refinement has its own weight (`init.refine_free_space`)
             cast_beams=(functools.partial(self._blocked_beams, batch, vertex_rows, point_rows)
-                        if opt.weights.free_space > 0 and batch.use_lidar.any() else None),
+                        if batch.use_lidar.any() else None),
         )
 
     def _blocked_beams(self, batch: Batch, vertex_rows: list[np.ndarray], point_rows: list[np.ndarray],
