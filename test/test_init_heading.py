@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 from smplify3d_ros.config import load_config
 from smplify3d_ros.eval.synthetic import default_intrinsics, make_person
 from smplify3d_ros.fitting.fitter import Fitter
-from smplify3d_ros.fitting.heading import estimate_heading
+from smplify3d_ros.fitting.heading import estimate_heading, hypotheses
 
 
 def _facing(root_orient: np.ndarray) -> np.ndarray:
@@ -54,6 +54,22 @@ def test_heading_hypotheses_contain_the_truth_for_front_and_back_views(anny_mode
                   for h in heading.hypotheses]
         assert min(errors) < 25.0, (yaw, errors)
         assert errors[0] < 40.0, (yaw, errors)  # the first, the fused estimate, is already close
+
+
+def test_merged_heading_hypotheses_make_room_for_the_side_views():
+    """A facing (or back, or side-on) estimate is its own mirror: the four readings merge into two opposite
+    headings, and a person the foreshortening misread (a kneeling person side-on whose hips spread in the
+    image) would have no hypothesis within 90 degrees; the freed slots go to the widest gaps."""
+    merge = np.deg2rad(20.0)
+    for estimate in (0.0, np.pi, np.pi / 2, 0.1):
+        out = hypotheses(estimate, merge, 4)
+        assert len(out) == 4 and np.isclose(np.cos(out[0] - estimate), 1.0)
+        ring = np.sort(np.mod(out, 2 * np.pi))
+        gaps = np.diff(np.r_[ring, ring[0] + 2 * np.pi])
+        assert np.degrees(gaps.max()) <= 100.0, (estimate, np.degrees(out))
+    spread = hypotheses(0.8, merge, 4)  # four distinct readings: nothing added
+    assert np.allclose(spread, [0.8, -0.8, 0.8 - np.pi, np.pi - 0.8])
+    assert len(hypotheses(0.0, merge, 2)) == 2
 
 
 def _yaw_rotvec(yaw: float) -> np.ndarray:

@@ -16,8 +16,12 @@ behind, so a confident face does not mean "facing the camera"):
   nearer, the sign the image cannot give; it needs points spread across the torso and fades for
   side-on people, whose visible torso is as deep as it is wide.
 The estimate is the fusion of both; the hypotheses are the estimate, its mirror about the ray, and the
-two readings of a left/right swap (ψ + π and π − ψ), duplicates merged. The fitter refines all of them a
-few iterations and keeps the one the full objective prefers (`fitter.Fitter._refine_builtin`).
+two readings of a left/right swap (ψ + π and π − ψ), duplicates merged. A facing, back or side-on
+estimate merges them into two opposite headings; the slots it frees go to the middle of the widest gaps
+(the two side views of a facing estimate), so that no heading is more than 45° from a hypothesis: the
+foreshortening misreads kneeling, crouching and leaning people, whose hips and shoulders spread in the
+image for reasons other than the heading. The fitter refines all of them a few iterations and keeps
+the one the full objective prefers (`fitter.Fitter._refine_builtin`).
 """
 
 from __future__ import annotations
@@ -115,14 +119,20 @@ def _wrap(a: float) -> float:
     return float((a + np.pi) % (2 * np.pi) - np.pi)
 
 
-def hypotheses(yaw_rel: float, merge: float) -> list[float]:
+def hypotheses(yaw_rel: float, merge: float, count: int = 4) -> list[float]:
     """ψ, its mirror about the ray −ψ, and the left/right-swap readings ψ + π and π − ψ, in that order,
-    duplicates (closer than `merge` rad) left out."""
+    duplicates (closer than `merge` rad) left out, then headings in the middle of the widest gaps
+    between them until there are `count`."""
     out: list[float] = []
     for a in (yaw_rel, -yaw_rel, yaw_rel + np.pi, np.pi - yaw_rel):
         a = _wrap(a)
         if all(abs(_wrap(a - b)) >= merge for b in out):
             out.append(a)
+    while len(out) < count:  # a facing, back or side-on estimate leaves two: the widest gaps get the rest
+        ring = np.sort(np.mod(out, 2 * np.pi))
+        gaps = np.diff(np.r_[ring, ring[0] + 2 * np.pi])
+        widest = int(np.argmax(gaps))
+        out.append(_wrap(ring[widest] + 0.5 * gaps[widest]))
     return out
 
 
@@ -134,5 +144,6 @@ def estimate_heading(kp: np.ndarray, K: np.ndarray, pelvis: np.ndarray, points: 
     slope = lidar_slope(torso_points(kp, K, points, cfg), azimuth, cfg) if len(points) else None
     yaw_rel = fuse(cos_rel, slope)
     # camera-frame yaw: facing along the ray's reverse is ψ = −α (see init.upright_root_orient)
-    candidates = [_wrap(a - azimuth) for a in hypotheses(yaw_rel, np.deg2rad(cfg.hypothesis_merge_deg))]
+    candidates = [_wrap(a - azimuth) for a in hypotheses(yaw_rel, np.deg2rad(cfg.hypothesis_merge_deg),
+                                                         max(1, cfg.heading_hypotheses))]
     return HeadingEstimate(cos_rel, slope, yaw_rel, azimuth, candidates[: max(1, cfg.heading_hypotheses)])
