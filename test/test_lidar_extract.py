@@ -511,6 +511,22 @@ def test_an_occluder_over_the_joints_seen_with_low_confidence_is_not_the_person(
         assert found == keeps_own, (len(taken), int(np.isin(taken, own).sum()), len(own))
 
 
+def test_a_cluster_over_none_of_the_joints_seen_with_confidence_hides_the_person():
+    """A simulated robot-path scene (tuning seed 81): an object 5.5 m out hides all but 15 % of a person
+    8.3 m out. Its 93 points fill the person's mask over the joints the detector guessed (low scores),
+    and it scored above the person's own 13 points, split into three clusters, which their parts' scores
+    discount too: the fit stood 2.7 m in front of the person. None of its points lies in the core of a
+    segment the detector saw with confidence, where the body would be if it were the body, and the
+    person's own points do lie there: with `occluder_min_points` the object is not taken."""
+    seed, n_people, person = 81, 3, 0
+    sim, k, own = robot_scene_person(seed, n_people, person)
+    depth = float(np.asarray(sim.people[person].keypoints3d)[[KP["left_hip"], KP["right_hip"]], 2].mean())
+    for config, in_front in ((make_config(occluder_min_points=0), True), (CONFIG, False)):
+        points = extracted(sim, k, config).points
+        taken = len(points) > 0 and float(np.median(points[:, 2])) < depth - 1.0
+        assert taken == in_front, (len(points), np.median(points[:, 2]) if len(points) else None, depth)
+
+
 @pytest.mark.parametrize(("seed", "person"), [(72, 1), (211, 1)])
 def test_a_person_behind_another_gets_their_own_points_on_a_second_look(seed, person):
     """Simulated robot-path scenes (tuning seeds 72 and 211, three people): a person 9.3 m (6.4 m) out,
@@ -546,7 +562,9 @@ def test_people_left_out_by_max_people_still_own_their_points():
     """A simulated crowd (outdoor_crowd tuning seed 36, ten people, `people.max_people` 6): person 9 stands
     10.3 m out behind someone the frame path leaves out (smaller box). Extracted without that bystander,
     person 9 took the bystander's points 2 m in front; with the frame's `bystanders` in the extraction,
-    each keeps their own."""
+    each keeps their own. (The bystander's points lie in no core of a segment of person 9 seen with
+    confidence, while person 9's own do, which `lidar.occluder_min_points` sees as well: the
+    counterfactual switches that off too.)"""
     import dataclasses
 
     from smplify3d_ros.config import load_config
@@ -562,8 +580,10 @@ def test_people_left_out_by_max_people_still_own_their_points():
     k = list(frame.person_ids).index(9)
     own = np.flatnonzero(sim.point_labels == 9)
     depth = float(np.asarray(sim.people[9].keypoints3d)[[KP["left_hip"], KP["right_hip"]], 2].mean())
-    for f, keeps_own in ((dataclasses.replace(frame, bystanders=None), False), (frame, True)):
-        _, result = extract_frame_people(f, config.lidar)
+    without = dataclasses.replace(config.lidar, occluder_min_points=0)
+    for f, lidar, keeps_own in ((dataclasses.replace(frame, bystanders=None), without, False),
+                                (frame, config.lidar, True)):
+        _, result = extract_frame_people(f, lidar)
         points = result.people[k].points
         assert len(points) > 0
         at_depth = abs(float(np.median(points[:, 2])) + 0.1 - depth) < 0.5

@@ -52,11 +52,14 @@ A pair qualifies with a positive score, isolation >= `min_isolation`, no surface
 plausible skeleton at the cluster's depth (the largest keypoint distance, scaled by the cluster's median depth, at most
 `max_person_extent_m`: rejects background far behind) and, for a person whose depth is expected (a
 track's prediction), a cluster depth within that expectation's tolerance: a tracked person half hidden
-behind another keeps their own few points rather than the wall seen past their shoulder. Pairs are taken
-greedily by score; each person gets one main cluster, and a cluster that is already someone's main is
-shared only when enough of the second person's mask points on it are exclusive (`share_min_exclusive`):
-two people touching in 3D form one cluster, yet each has their own region of it. People left without
-a main cluster get a second look (`second_look`) once the others are placed: a placed person's body
+behind another keeps their own few points rather than the wall seen past their shoulder. A cluster that
+hides the body is nobody's main cluster: one with `occluder_min_points` mask points, none of them in the
+core of a segment the detector saw with confidence, while other points lie there (an object in front
+fills the mask over the joints the detector guessed; where it saw the body, the LiDAR sees the body's own
+few points). Pairs are taken greedily by score; each person gets one main cluster, and a cluster that is
+already someone's main is shared only when enough of the second person's mask points on it are exclusive
+(`share_min_exclusive`): two people touching in 3D form one cluster, yet each has their own region of it.
+People left without a main cluster get a second look (`second_look`) once the others are placed: a placed person's body
 hides nothing (what their cluster covers of a torso behind them is them, not a reason against the
 person behind), and a placed person holds only the points within `body_depth_window_m` of their own
 depth, so points metres behind them count as exclusively the hidden person's; and a part refutes or is
@@ -300,7 +303,7 @@ def _main_clusters(
     """
     score, body_like = _qualify(counts, coverage, contradicted, mask_cover, box_fraction, depth, extent,
                                 surface, config, expected_depth)
-    main, owners = _assign(score, body_like, counts, config)
+    main, owners = _assign(score, body_like & ~_hides_the_body(counts, config), counts, config)
     body_like[:, owners > 0] = False  # someone's main cluster is nobody's extra
     return main, body_like
 
@@ -324,6 +327,16 @@ def _qualify(
             plausible &= ~(np.abs(depth - expected) > tolerance)  # NaN expectation: no constraint
         body_like = (in_mask > 0) & plausible & (isolation >= config.min_isolation) & ~surface
     return score, body_like
+
+
+def _hides_the_body(counts: dict[str, np.ndarray], config: ExtractionConfig) -> np.ndarray:
+    """(P, C) bool: the cluster has `occluder_min_points` mask points, none of them in the core of a
+    segment the detector saw with confidence, while other points lie there. Where the detector saw the
+    body the LiDAR sees something else: the cluster covers only the joints it guessed, i.e. it hides
+    them. It may not be the person's main cluster (an arm split off the body may still join one)."""
+    if config.occluder_min_points <= 0:
+        return np.zeros(counts["in_mask"].shape, dtype=bool)
+    return (counts["in_mask"] >= config.occluder_min_points) & (counts["core"] == 0) & (counts["core_any"] > 0)
 
 
 def _assign(
@@ -509,7 +522,8 @@ def _score_clusters(
         if len(hypotheses[k]):
             fraction[k, hypotheses[k]] = mask_fraction(skeletons[k], depth[k, hypotheses[k]], camera, config)
     counts = {"in_box": count(g.box), "in_context": count(g.context), "in_mask": count(mask),
-              "exclusive": count(exclusive)}
+              "exclusive": count(exclusive), "core": own_core.sum(axis=2),
+              "core_any": np.broadcast_to(own_core.sum(axis=(1, 2))[:, None], (n_people, n_clusters))}
     surface = _surface_through(g, z, depth, config)
     if expected_depth is not None:
         expected_depth = np.asarray(expected_depth, np.float64).reshape(n_people, 2)
@@ -533,7 +547,8 @@ def _score_clusters(
         score, second = _qualify(counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent,
                                  surface, config, expected_depth)
         owners = np.bincount(main[placed], minlength=n_clusters)
-        main, owners = _assign(score, second, counts, config, main, owners, missing)
+        main, owners = _assign(score, second & ~_hides_the_body(counts, config), counts, config, main, owners,
+                               missing)
         body_like[missing] = second[missing]
         body_like[:, owners > 0] = False
     return main, body_like, depth
