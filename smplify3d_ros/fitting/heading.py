@@ -144,6 +144,6 @@ def estimate_heading(kp: np.ndarray, K: np.ndarray, pelvis: np.ndarray, points: 
     slope = lidar_slope(torso_points(kp, K, points, cfg), azimuth, cfg) if len(points) else None
     yaw_rel = fuse(cos_rel, slope)
     # camera-frame yaw: facing along the ray's reverse is ψ = −α (see init.upright_root_orient)
-    candidates = [_wrap(a - azimuth) for a in hypotheses(yaw_rel, np.deg2rad(cfg.hypothesis_merge_deg),
-                                                         max(1, cfg.heading_hypotheses))]
-    return HeadingEstimate(cos_rel, slope, yaw_rel, azimuth, candidates[: max(1, cfg.heading_hypotheses)])
+    count = max(1, cfg.heading_hypotheses)
+    candidates = [_wrap(a - azimuth) for a in hypotheses(yaw_rel, np.deg2rad(cfg.hypothesis_merge_deg), count)]
+    return HeadingEstimate(cos_rel, slope, yaw_rel, azimuth, candidates[:count])
