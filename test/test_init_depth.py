@@ -8,7 +8,13 @@ import torch
 from smplify3d_ros.config import load_config
 from smplify3d_ros.eval.synthetic import default_intrinsics, random_pose, sample_surface
 from smplify3d_ros.fitting.fitter import Fitter
-from smplify3d_ros.fitting.init import estimate_depth, ground_depth, points_too_near, upright_root_orient
+from smplify3d_ros.fitting.init import (
+    estimate_depth,
+    few_points_depth,
+    ground_depth,
+    points_too_near,
+    upright_root_orient,
+)
 from smplify3d_ros.fitting.losses import project
 from smplify3d_ros.fitting.visibility import front_facing
 from smplify3d_ros.keypoints import KP
@@ -85,3 +91,44 @@ def test_a_persons_own_points_are_kept(anny_model):
     cfg = load_config().fitting.init
     obs, _, K = _person_on_ground(anny_model)
     assert len(obs.points) and not points_too_near(obs, K, cfg)
+
+
+def _upper_body_only(obs, keep_points):
+    """The person with everything below the shoulders' children hidden: hips, knees and ankles guessed
+    (confidence 0.1), the box around the rest, no ground plane, and only `keep_points` points."""
+    kp = obs.keypoints.copy()
+    kp[11:, 2] = 0.1
+    seen = kp[:11, :2]
+    return dataclasses.replace(obs, keypoints=kp, bbox=np.array([*seen.min(0), *seen.max(0)]), ground=None,
+                               points=keep_points)
+
+
+def test_a_few_points_the_image_agrees_with_give_a_half_hidden_persons_depth(anny_model):
+    """Two points on the chest of a person 8 m out whose lower body is hidden (fewer than
+    `min_points_depth`): the upper body's box alone puts them twice as far, and the points, nearer than
+    that, give the depth, held by the fit. Two points of the background seen past the body, beyond every
+    size cue, contradict the image: the box cue decides. With `few_points_max_ratio` 0 the chest's
+    points are ignored too."""
+    config = load_config().fitting
+    obs, pelvis, K = _person_on_ground(anny_model)
+    true_z = float(pelvis[2])
+    chest = obs.points[np.argsort(np.abs(obs.points[:, 1] - (pelvis[1] - 0.3)))[:2]]  # 30 cm above the pelvis
+    assert len(chest) < config.min_points_depth
+    hidden = _upper_body_only(obs, chest)
+    assert abs(few_points_depth(hidden, K, config.init) / true_z - 1) < 0.05
+    assert abs(estimate_depth(hidden, K, config.init, use_points=False) / true_z - 1) < 0.05
+    fit = Fitter(config, anny_model).fit([hidden], K)[0]
+    assert FLAG_IMAGE_ONLY in fit.flags
+    assert abs(fit.joints[0, 2] / true_z - 1) < 0.05, (fit.joints[0], true_z)
+
+    size_only = estimate_depth(dataclasses.replace(hidden, points=hidden.points[:0]), K, config.init, False)
+    assert size_only / true_z - 1 > 0.3  # the counterfactual: the box of the upper body is far off
+    wall = chest * np.float32(1.2 * size_only / true_z)  # along the same rays, beyond every size cue
+    background = _upper_body_only(obs, wall)
+    assert few_points_depth(background, K, config.init) is None
+    assert estimate_depth(background, K, config.init, use_points=False) == size_only
+
+    off = dataclasses.replace(config, init=dataclasses.replace(config.init, few_points_max_ratio=0.0))
+    assert few_points_depth(hidden, K, off.init) is None
+    fit = Fitter(off, anny_model).fit([hidden], K)[0]
+    assert fit.joints[0, 2] / true_z - 1 > 0.3, (fit.joints[0], true_z)

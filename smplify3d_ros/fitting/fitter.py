@@ -460,6 +460,15 @@ class Fitter:
         return [visible_vertices(verts[i], self.faces_np, self.part_of_face_np, batch.lidar_origin, threshold,
                                  batch.occluded_lidar[i]) for i in range(batch.size)]
 
+    def _depth_from_points(self, person: PersonObservation, batch: Batch) -> bool:
+        """Whether the person's points gave their depth: `min_points_depth` of them, or fewer that the
+        image agrees with (`initializer.few_points_depth`)."""
+        if len(person.points) >= self.config.min_points_depth:
+            return True
+        K = batch.K.cpu().double().numpy()
+        return (person.init is None and initializer.predicted_depth(person) is None
+                and initializer.few_points_depth(person, K, self.config.init) is not None)
+
     def _problem(self, batch: Batch, max_vertices: int | None = None) -> FitProblem:
         """The batched observations of the current bodies: visible vertices (subsampled to `max_vertices`,
         default the profile's `chamfer_max_vertices`), points, priors."""
@@ -491,7 +500,7 @@ class Fitter:
             init_pose=batch.state.pose.detach().clone(),
             init_transl=batch.state.transl.detach().clone(),
             use_lidar=torch.as_tensor(batch.use_lidar, device=dev),
-            depth_measured=torch.as_tensor([not batch.use_lidar[i] and len(p.points) >= self.config.min_points_depth
+            depth_measured=torch.as_tensor([not batch.use_lidar[i] and self._depth_from_points(p, batch)
                                             for i, p in enumerate(batch.people)], dtype=torch.bool, device=dev),
             pixel_scale=self._pixel_scale(batch),
             neutral_scale=self._neutral_scale(batch),

@@ -84,6 +84,26 @@ def size_depths(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, whole_bo
     return depths
 
 
+def predicted_depth(obs: PersonObservation) -> float | None:
+    """The depth at which a tracked person's track expects their pelvis (None: untracked)."""
+    if obs.predicted_pelvis is not None and np.isfinite(obs.predicted_pelvis[2]) and obs.predicted_pelvis[2] > 0:
+        return float(obs.predicted_pelvis[2])
+    return None
+
+
+def few_points_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> float | None:
+    """The pelvis depth that a person's points give when they are too few to be trusted on their own
+    (under `fitting.min_points_depth`) but the image agrees with them: it lies no farther than
+    `few_points_max_ratio` x the nearest `size_depths`, each an upper bound for a partly hidden person
+    (whose box and torso shrink in the image). Points beyond it contradict the image: another person's,
+    or the background seen past the body. (Points far nearer, an occluder's, are dropped before:
+    `points_too_near`.) None otherwise."""
+    if len(obs.points) == 0 or cfg.few_points_max_ratio <= 0.0:
+        return None
+    depth = float(np.median(obs.points[:, 2])) + cfg.lidar_surface_offset
+    return depth if depth <= cfg.few_points_max_ratio * min(size_depths(obs, K, cfg, whole_body=False)) else None
+
+
 def estimate_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, use_points: bool) -> float:
     """Depth (m, camera z) of the pelvis (module docstring). With points, they decide: even a handful
     (`fitting.min_points_depth`) measured the depth within centimetres for 9 of 11 barely seen people
@@ -98,9 +118,11 @@ def estimate_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, use_p
         chest = torso_points(obs.keypoints, K, obs.points, cfg)
         points = chest if len(chest) >= cfg.lidar_heading_min_points else obs.points
         return float(np.median(points[:, 2])) + cfg.lidar_surface_offset
-    if obs.predicted_pelvis is not None and np.isfinite(obs.predicted_pelvis[2]) and obs.predicted_pelvis[2] > 0:
-        return float(obs.predicted_pelvis[2])  # a tracked person: where their track, points and all, expects them
-    return min(size_depths(obs, K, cfg, whole_body=False))
+    predicted = predicted_depth(obs)
+    if predicted is not None:
+        return predicted  # a tracked person: where their track, points and all, expects them
+    few = few_points_depth(obs, K, cfg)
+    return few if few is not None else min(size_depths(obs, K, cfg, whole_body=False))
 
 
 def points_too_near(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> bool:
