@@ -37,7 +37,9 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
         from a grid of `mask_area_samples`^2 pixels), or less where a body shadows the wall;
       boundedness: in_box / (in_box + in_context) is 1 for an object inside the bbox, and for a
         wall the bbox's share of bbox + surroundings;
-    each rescaled so that the wall's value is 0 and 1 stays 1. Boundedness rescues a person merged
+    each rescaled so that the wall's value is 0 and 1 stays 1; a pair needs `min_isolation`, or
+    `core_min_isolation` when the cluster has `core_isolation_points` in the core (a person merged with
+    the post they lean on stands out only partly, but fills the core). Boundedness rescues a person merged
     with a prop (a seat, a carried box) whose points leave the mask; purity, a person next to a
     large object. Isolation keeps a wall from standing in for a person whom the LiDAR does not see
     (dark clothes, out of range).
@@ -48,7 +50,7 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
     hold at least `surface_ratio` times the bbox's points at j's depth (within `depth_tolerance_m`), or
     one of them `surface_one_side_ratio` times, and at least `surface_min_points`. Points on another
     person's mask do not count: in a crowd the neighbours on both sides stand at one's own depth.
-A pair qualifies with a positive score, isolation >= `min_isolation`, no surface through the box, a
+A pair qualifies with a positive score, the isolation it needs (above), no surface through the box, a
 plausible skeleton at the cluster's depth (the largest keypoint distance, scaled by the cluster's median depth, at most
 `max_person_extent_m`: rejects background far behind) and, for a person whose depth is expected (a
 track's prediction), a cluster depth within that expectation's tolerance: a tracked person half hidden
@@ -325,8 +327,21 @@ def _qualify(
         if expected_depth is not None:
             expected, tolerance = expected_depth[:, :1], expected_depth[:, 1:]
             plausible &= ~(np.abs(depth - expected) > tolerance)  # NaN expectation: no constraint
-        body_like = (in_mask > 0) & plausible & (isolation >= config.min_isolation) & ~surface
+        body_like = (in_mask > 0) & plausible & (isolation >= _min_isolation(counts, config)) & ~surface
     return score, body_like
+
+
+def _min_isolation(counts: dict[str, np.ndarray], config: ExtractionConfig) -> np.ndarray:
+    """(P, C) the isolation each cluster needs: `min_isolation`, or `core_min_isolation` for a cluster
+    with `core_isolation_points` points in the core of the confident segments. A wall seen where the
+    LiDAR misses a person does not stand out from the wall around it (isolation about 0) however many
+    of its points fall in the core; a person merged with the post they lean against stands out partly
+    (the post fills the box beside the body and leaves it at the top: 0.3-0.4, tuning seed 29 at
+    2-8 m), and their own points fill the skeleton's core."""
+    needed = np.full(counts["core"].shape, config.min_isolation)
+    if config.core_isolation_points > 0:
+        needed[counts["core"] >= config.core_isolation_points] = min(config.core_min_isolation, config.min_isolation)
+    return needed
 
 
 def _hides_the_body(counts: dict[str, np.ndarray], config: ExtractionConfig) -> np.ndarray:

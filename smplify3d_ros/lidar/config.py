@@ -46,6 +46,8 @@ class ExtractionConfig:
     mask_area_samples: int  # grid side (pixels sampled) for the fraction of the bbox the mask covers
     context_pad: float  # the bbox's surroundings: this fraction of its larger side further out
     min_isolation: float  # how much a body stands out from a surface (0: like a wall, 1: fully)
+    core_isolation_points: int  # a cluster with this many core points needs only `core_min_isolation` (0: off)
+    core_min_isolation: float  # ...the isolation such a cluster needs (a person merged with what they lean on)
     surface_side_width: float  # bands beside the bbox, in bbox widths, where a surface would go on
     surface_ratio: float  # a cluster is a surface if both bands hold this fraction of the bbox's points at its depth
     surface_one_side_ratio: float  # ... or one band this many times them
@@ -99,6 +101,8 @@ class ExtractionConfig:
         require(self.mask_area_samples >= 2, "mask_area_samples must be >= 2")
         require(self.context_pad > 0.0, "context_pad must be > 0")
         require(0.0 <= self.min_isolation <= 1.0, "min_isolation must be in [0, 1]")
+        require(0.0 <= self.core_min_isolation <= 1.0, "core_min_isolation must be in [0, 1]")
+        require(self.core_isolation_points >= 0, "core_isolation_points must be >= 0")
         require(self.surface_side_width > 0.0, "surface_side_width must be > 0")
         require(self.surface_ratio > 0.0, "surface_ratio must be > 0")
         require(self.surface_one_side_ratio > 0.0, "surface_one_side_ratio must be > 0")

@@ -302,6 +302,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "lidar.vertical_resolution_deg": (0, 90), "lidar.ring_gap_factor": (1, _INF),
     "lidar.mask_radius_m": (0, _INF), "lidar.max_person_extent_m": (0, _INF),
     "lidar.mask_area_samples": (2, _INF), "lidar.context_pad": (0, _INF), "lidar.min_isolation": (0, 1),
+    "lidar.core_isolation_points": (0, _INF), "lidar.core_min_isolation": (0, 1),
     "lidar.surface_side_width": (0, _INF), "lidar.surface_ratio": (0, _INF), "lidar.surface_min_points": (1, _INF),
     "lidar.surface_one_side_ratio": (0, _INF),
     "lidar.shared_weight": (0, 1), "lidar.coverage_full_score": (0, 1), "lidar.share_min_exclusive": (0, 1),
