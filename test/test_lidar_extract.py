@@ -527,6 +527,19 @@ def test_a_cluster_over_none_of_the_joints_seen_with_confidence_hides_the_person
         assert taken == in_front, (len(points), np.median(points[:, 2]) if len(points) else None, depth)
 
 
+def test_an_object_in_front_of_the_confident_joints_leaves_the_person_their_own_points():
+    """A simulated robot-path scene (tuning seed 242 at 2-8 m): a person 4.5 m out (37 points) behind a
+    wall-like object 1.8 m out that covers the segments the detector saw with confidence. Their own
+    cluster (30 mask points) has no point in those cores, which hold only the object's: counted as
+    "other points lie there", the occluder rule made the person's own cluster an object hiding them,
+    and they got no points. Points nearer than the cluster are what hides the core from it."""
+    sim, k, own = robot_scene_person(242, 2, 0, distance_range=(2.0, 8.0))
+    assert len(own) >= 30
+    for config in (CONFIG, make_config(occluder_min_points=0)):
+        taken = extracted(sim, k, config).indices
+        assert len(taken) >= 0.7 * len(own) and np.isin(taken, own).mean() > 0.9, (len(taken), len(own))
+
+
 def test_a_person_merged_with_the_post_they_lean_on_keeps_their_points():
     """A simulated robot-path scene (tuning seed 29 at 2-8 m): a person leaning back against a post 4.3 m
     out, fully visible, 60 points. Person and post are one cluster; the post fills the box beside the

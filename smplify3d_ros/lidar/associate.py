@@ -56,7 +56,7 @@ plausible skeleton at the cluster's depth (the largest keypoint distance, scaled
 track's prediction), a cluster depth within that expectation's tolerance: a tracked person half hidden
 behind another keeps their own few points rather than the wall seen past their shoulder. A cluster that
 hides the body is nobody's main cluster: one with `occluder_min_points` mask points, none of them in the
-core of a segment the detector saw with confidence, while other points lie there (an object in front
+core of a segment the detector saw with confidence, while other points lie there, no nearer (an object in front
 fills the mask over the joints the detector guessed; where it saw the body, the LiDAR sees the body's own
 few points). Pairs are taken greedily by score; each person gets one main cluster, and a cluster that is
 already someone's main is shared only when enough of the second person's mask points on it are exclusive
@@ -346,12 +346,26 @@ def _min_isolation(counts: dict[str, np.ndarray], config: ExtractionConfig) -> n
 
 def _hides_the_body(counts: dict[str, np.ndarray], config: ExtractionConfig) -> np.ndarray:
     """(P, C) bool: the cluster has `occluder_min_points` mask points, none of them in the core of a
-    segment the detector saw with confidence, while other points lie there. Where the detector saw the
-    body the LiDAR sees something else: the cluster covers only the joints it guessed, i.e. it hides
-    them. It may not be the person's main cluster (an arm split off the body may still join one)."""
+    segment the detector saw with confidence, while other points lie there at or behind its depth. Where
+    the detector saw the body the LiDAR sees something farther: the cluster covers only the joints it
+    guessed, i.e. it hides them. It may not be the person's main cluster (an arm split off the body may
+    still join one). Core points nearer than the cluster do not count: an object in front hides the
+    core from the body, whose cluster then has no core points of its own (tuning seed 242 at 2-8 m)."""
     if config.occluder_min_points <= 0:
         return np.zeros(counts["in_mask"].shape, dtype=bool)
-    return (counts["in_mask"] >= config.occluder_min_points) & (counts["core"] == 0) & (counts["core_any"] > 0)
+    return (counts["in_mask"] >= config.occluder_min_points) & (counts["core"] == 0) & (counts["core_behind"] > 0)
+
+
+def _core_behind(core: np.ndarray, z: np.ndarray, depth: np.ndarray, config: ExtractionConfig) -> np.ndarray:
+    """(P, C) points in person k's confident core that lie no nearer than cluster j (within
+    `depth_tolerance_m`): the body behind an object in front. Points nearer than j are something in front
+    of it, which hides the core from a cluster that is the body."""
+    out = np.zeros(depth.shape, dtype=np.int64)
+    for k in range(len(depth)):
+        depths = np.sort(z[core[k]])
+        finite = np.isfinite(depth[k])
+        out[k, finite] = len(depths) - np.searchsorted(depths, depth[k, finite] - config.depth_tolerance_m)
+    return out
 
 
 def _assign(
@@ -538,7 +552,7 @@ def _score_clusters(
             fraction[k, hypotheses[k]] = mask_fraction(skeletons[k], depth[k, hypotheses[k]], camera, config)
     counts = {"in_box": count(g.box), "in_context": count(g.context), "in_mask": count(mask),
               "exclusive": count(exclusive), "core": own_core.sum(axis=2),
-              "core_any": np.broadcast_to(own_core.sum(axis=(1, 2))[:, None], (n_people, n_clusters))}
+              "core_behind": _core_behind(core, z, depth, config)}
     surface = _surface_through(g, z, depth, config)
     if expected_depth is not None:
         expected_depth = np.asarray(expected_depth, np.float64).reshape(n_people, 2)
