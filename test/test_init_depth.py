@@ -94,8 +94,8 @@ def test_a_persons_own_points_are_kept(anny_model):
 
 
 def _upper_body_only(obs, keep_points):
-    """The person with everything below the shoulders' children hidden: hips, knees and ankles guessed
-    (confidence 0.1), the box around the rest, no ground plane, and only `keep_points` points."""
+    """The person with the lower body hidden: hips, knees and ankles guessed (confidence 0.1), the box
+    around the rest, no ground plane, and only `keep_points` points."""
     kp = obs.keypoints.copy()
     kp[11:, 2] = 0.1
     seen = kp[:11, :2]
