@@ -460,14 +460,12 @@ class Fitter:
         return [visible_vertices(verts[i], self.faces_np, self.part_of_face_np, batch.lidar_origin, threshold,
                                  batch.occluded_lidar[i]) for i in range(batch.size)]
 
-    def _depth_from_points(self, person: PersonObservation, batch: Batch) -> bool:
-        """Whether the person's points gave their depth: `min_points_depth` of them, or fewer that the
-        image agrees with (`initializer.few_points_depth`)."""
+    def _depth_from_points(self, person: PersonObservation, K: np.ndarray) -> bool:
+        """Whether the person's points gave their depth: `min_points_depth` of them, or, for the built-in
+        initializer, fewer that the image agrees with (`initializer.depth_from_few_points`)."""
         if len(person.points) >= self.config.min_points_depth:
             return True
-        K = batch.K.cpu().double().numpy()
-        return (person.init is None and initializer.predicted_depth(person) is None
-                and initializer.few_points_depth(person, K, self.config.init) is not None)
+        return person.init is None and initializer.depth_from_few_points(person, K, self.config.init)
 
     def _problem(self, batch: Batch, max_vertices: int | None = None) -> FitProblem:
         """The batched observations of the current bodies: visible vertices (subsampled to `max_vertices`,
@@ -477,6 +475,7 @@ class Fitter:
         verts = batch.vertices if batch.vertices is not None else self._forward(batch.state).vertices.cpu().numpy()
         batch.vertices = None  # the stages move the bodies next
         masks = self._visible_masks(batch, verts)
+        K = batch.K.cpu().double().numpy()
         vertex_rows, point_rows = [], []
         for i, p in enumerate(batch.people):
             index = np.flatnonzero(masks[i])
@@ -500,7 +499,7 @@ class Fitter:
             init_pose=batch.state.pose.detach().clone(),
             init_transl=batch.state.transl.detach().clone(),
             use_lidar=torch.as_tensor(batch.use_lidar, device=dev),
-            depth_measured=torch.as_tensor([not batch.use_lidar[i] and self._depth_from_points(p, batch)
+            depth_measured=torch.as_tensor([not batch.use_lidar[i] and self._depth_from_points(p, K)
                                             for i, p in enumerate(batch.people)], dtype=torch.bool, device=dev),
             pixel_scale=self._pixel_scale(batch),
             neutral_scale=self._neutral_scale(batch),

@@ -125,6 +125,12 @@ def estimate_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, use_p
     return few if few is not None else min(size_depths(obs, K, cfg, whole_body=False))
 
 
+def depth_from_few_points(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> bool:
+    """Whether `estimate_depth`, for a person with fewer than `fitting.min_points_depth` points, took the
+    depth from those points (`few_points_depth`) rather than from a track's prediction or the size cues."""
+    return predicted_depth(obs) is None and few_points_depth(obs, K, cfg) is not None
+
+
 def points_too_near(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> bool:
     """Whether the person's points lie nearer than `points_min_depth_ratio` x the nearest whole-body
     `size_depths`: no foreshortening shrinks every length of a body that much, so they belong to an
