@@ -68,14 +68,18 @@ def make_person(
     keypoint_noise_px: float,
     pose_spread: float = 0.3,
     person_id: int = 0,
+    pose: np.ndarray | None = None,
 ) -> SyntheticPerson:
+    """A person `distance` m in front of the camera, turned by `yaw`, in a random pose (`pose_spread`) or
+    `pose` (J, 3) when given."""
     from smplify3d_ros.fitting.init import upright_root_orient
 
     shape = np.clip(0.5 + 0.2 * rng.standard_normal(len(model.shape_names)), 0.05, 0.95)
     if model.name != "anny":
         shape = 0.5 * rng.standard_normal(len(model.shape_names))
     lateral = rng.uniform(-0.2, 0.2) * distance
-    truth = BodyParams(model.name, shape, random_pose(model, rng, pose_spread), upright_root_orient(yaw),
+    pose = random_pose(model, rng, pose_spread) if pose is None else np.asarray(pose, np.float64)
+    truth = BodyParams(model.name, shape, pose, upright_root_orient(yaw),
                        np.array([lateral, 0.2, distance]))
     body = model.posed([truth])[0]
     uv = project(torch.as_tensor(body.keypoints3d)[None], torch.as_tensor(K, dtype=torch.float64))[0].numpy()

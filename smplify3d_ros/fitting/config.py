@@ -182,6 +182,7 @@ class OptimizerProfile:
     lm_damping: float
     pixel_reference_px: float
     neutral_reference_px: float  # weights.neutral × max(1, this / the person's expected pixel height); 0: constant
+    neutral_robust_scale: float  # Geman-McClure scale of the neutral prior (range widths); 0: quadratic
     joint_motion_relative: bool  # the joint motion hold on the joints about their hip midpoint (False: where they are)
     free_space_margin_m: float  # a beam is blocked when the body is nearer than its point less this (m)
 
@@ -191,6 +192,7 @@ class OptimizerProfile:
         require(self.lm_damping > 0, "lm_damping must be > 0")
         require(self.pixel_reference_px >= 0, "pixel_reference_px must be >= 0 (0 = raw pixels)")
         require(self.neutral_reference_px >= 0, "neutral_reference_px must be >= 0 (0 = constant)")
+        require(self.neutral_robust_scale >= 0, "neutral_robust_scale must be >= 0 (0 = quadratic)")
         require(all(i >= 0 for i in self.iterations), "iterations must be >= 0")
         require(self.single_stage_iterations >= 0, "single_stage_iterations must be >= 0")
         require(self.early_stop_rel_tol >= 0, "early_stop_rel_tol must be >= 0")

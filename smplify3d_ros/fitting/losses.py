@@ -234,6 +234,17 @@ def depth_hold_residuals(transl: torch.Tensor, init_transl: torch.Tensor, weight
     return weight.sqrt() * (transl[:, 2] - init_transl[:, 2]) / z0
 
 
+def robust_residuals(residual: torch.Tensor, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """ψ(r) = s·r / √(s² + r²), element-wise, and dψ/dr = s³ / (s² + r²)^1.5: ψ² is the Geman-McClure ρ(r)
+    (`geman_mcclure`), so a prior written as residuals r becomes a robust one whose squares sum to Σ ρ(r),
+    and whose Jacobian is the plain one's rows times dψ/dr (exact Gauss-Newton, no reweighting). s <= 0:
+    r itself (quadratic)."""
+    if scale <= 0:
+        return residual, torch.ones_like(residual)
+    sq = scale * scale + residual**2
+    return scale * residual / sq.sqrt(), scale**3 / sq**1.5
+
+
 def upright_residuals(root_orient: torch.Tensor, up: torch.Tensor) -> torch.Tensor:
     """(B, 3) the body's up axis (canonical y, turned by `root_orient`) crossed with the world's up (B, 3),
     camera frame: its norm is the sine of the body's tilt from upright. People mostly stand, sit or walk

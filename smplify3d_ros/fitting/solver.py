@@ -286,7 +286,7 @@ def prior_block(model: BodyModel, state, problem, stage, profile: OptimizerProfi
     pose = state.pose
     terms = [(w.pose, *range_prior_linearized(model, pose)), (w.bend, *bending_linearized(model, pose))]
     if w.neutral > 0:
-        terms.append((neutral_weight(w, problem), *neutral_linearized(model, pose)))
+        terms.append((neutral_weight(w, problem), *neutral_linearized(model, pose, profile.neutral_robust_scale)))
     if not stage.hold:
         _add_pose_terms(terms, B, layout, profile, acc)
         return
@@ -364,13 +364,15 @@ def upright_linearized(root_orient: torch.Tensor, up: torch.Tensor) -> tuple[tor
     return torch.cross(a, up, dim=-1), d.transpose(-1, -2)
 
 
-def neutral_linearized(model: BodyModel, pose: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """`BodyModel.neutral_residuals` (B, 3J) and their Jacobian (B, 3J, 3J): each joint's frame rows over
-    its range widths."""
-    r = model.neutral_residuals(pose)
+def neutral_linearized(model: BodyModel, pose: torch.Tensor, robust_scale: float = 0.0
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+    """`BodyModel.neutral_residuals` (B, 3J), made robust with `robust_scale` (`losses.robust_residuals`),
+    and their Jacobian (B, 3J, 3J): each joint's frame rows over its range widths, times dψ/dr."""
+    r, slope = losses.robust_residuals(model.neutral_residuals(pose), robust_scale)
     width = (model.anat_ranges[..., 1] - model.anat_ranges[..., 0]).to(pose.dtype).clamp(min=1e-3)
     blocks = model.anat_frames.to(pose.dtype) / width[..., None]  # (J, 3, 3)
-    return r, _block_diagonal(blocks.expand(pose.shape[0], -1, -1, -1))
+    blocks = blocks * slope.unflatten(1, (-1, 3))[..., None]  # row (joint, anatomical angle) scaled
+    return r, _block_diagonal(blocks)
 
 
 def bending_linearized(model: BodyModel, pose: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -92,8 +92,8 @@ def stage_loss(
         loss = loss + _w(weights.pose, profile) * model.pose_prior(state.pose)
         loss = loss + _w(weights.bend, profile) * model.bending_prior(state.pose)
         if weights.neutral > 0:
-            loss = loss + _w(solver.neutral_weight(weights, problem), profile) * (
-                model.neutral_residuals(state.pose) ** 2).sum(-1)
+            neutral, _ = losses.robust_residuals(model.neutral_residuals(state.pose), profile.neutral_robust_scale)
+            loss = loss + _w(solver.neutral_weight(weights, problem), profile) * (neutral**2).sum(-1)
         if weights.upright > 0 and problem.up is not None:
             loss = loss + _w(weights.upright, profile) * (losses.upright_residuals(
                 state.root_orient, problem.up) ** 2).sum(-1)

@@ -286,6 +286,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "fitting.init.refine_keypoint_depth": (0, _INF), "fitting.init.refine_max_vertices": (0, _INF),
     "fitting.lidar_mismatch_m": (0, _INF), "fitting.profiles.*.lm_damping": (0, _INF),
     "fitting.profiles.*.pixel_reference_px": (0, _INF), "fitting.profiles.*.neutral_reference_px": (0, _INF),
+    "fitting.profiles.*.neutral_robust_scale": (0, _INF),
     "fitting.profiles.*.free_space_margin_m": (0, _INF), "fitting.init.refine_free_space": (0, _INF),
     "fitting.init.start_elbow_flexion_deg": (0, 150),
     "fitting.init.refine_lr": (0, _INF), "fitting.min_points": (0, _INF), "fitting.min_points_depth": (1, _INF),
