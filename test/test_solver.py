@@ -68,6 +68,7 @@ def test_prior_jacobians_match_autodiff(anny_model):
         "range": lambda p: solver.range_prior_linearized(model, p),
         "bend": lambda p: solver.bending_linearized(model, p),
         "neutral": lambda p: solver.neutral_linearized(model, p),
+        "neutral_robust": lambda p: solver.neutral_linearized(model, p, 0.5),  # ψ(r), rows times dψ/dr
         "held": lambda p: solver.held_linearized(p, init, mask),
     }
     up = torch.tensor([[0.05, -1.0, 0.1], [0.0, -1.0, 0.0]], dtype=torch.float64)
