@@ -63,12 +63,25 @@ def test_tiny_run_writes_the_json_schema_and_a_plot(tmp_path, capsys):
     verdict = doc["chamfer_verdict"][0]
     assert verdict["method"] == methods.ROBOT_METHOD
     assert verdict["missed_and_off"] <= min(verdict["missed"], verdict["off"])
+    # the fits' chamfer beside the true bodies', scored alike (the truth is what a perfect fit reads)
+    surface = {s["method"]: s for s in doc["surface"]}
+    robot = surface[methods.ROBOT_METHOD]
+    if case["chamfer_m"] is not None:
+        assert robot["fits_with_points"] == 1
+        assert robot["chamfer_mm"] == pytest.approx(1000 * case["scored_chamfer_m"], abs=0.06)
+        assert robot["truth_chamfer_mm"] == pytest.approx(1000 * case["truth_chamfer_m"], abs=0.06)
+        assert 0 < case["truth_points_to_mesh_m"] <= case["truth_chamfer_m"]
+    hmr_only = next(c for c in doc["cases"] if c["method"] == "hmr_init")
+    assert hmr_only["scored_chamfer_m"] is None  # not a fit: no chamfer of its own to score
+    assert hmr_only["truth_chamfer_m"] == case["truth_chamfer_m"]  # a fact of the person
     assert (tmp_path / "bench_robot_vlp16.png").stat().st_size > 10_000
     assert (tmp_path / "bench_robot_vlp16_bands.png").stat().st_size > 10_000
     printed = capsys.readouterr().out
     assert "Robot path (builtin_init_three_stage" in printed
     assert "With an upstream HMR" in printed and "| smplify3d_three_stage | VLP-16 |" in printed
     assert "wall time" in printed and "seeds 1000-1000: report" in printed
+    if case["chamfer_m"] is not None:
+        assert f"{methods.ROBOT_METHOD}: 1 fits with points, every visible vertex: chamfer" in printed
 
 
 def test_tuning_seeds_are_named_as_such(tmp_path, capsys):

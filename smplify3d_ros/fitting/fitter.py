@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from smplify3d_ros.body import BodyModel, load_body_model
 from smplify3d_ros.body.base import PARAM_FIELDS
@@ -451,6 +452,27 @@ class Fitter:
                                         state.transl[i].cpu().double().numpy(), center.cpu().double().numpy(), T)
             state.root_orient[i] = torch.as_tensor(root, dtype=self.dtype, device=self.device)
             state.transl[i] = torch.as_tensor(transl, dtype=self.dtype, device=self.device)
+
+    def surface_distances(self, person: PersonObservation, vertices: np.ndarray,
+                          lidar_origin: np.ndarray | None = None) -> tuple[float, float]:
+        """(chamfer, points to mesh), m, of any body's `vertices` (V, 3) against `person`'s points, by the
+        rule of a fit's `FitQuality.chamfer_m` and `points_to_mesh_m`: the vertices that Eq. 1 (from the
+        LiDAR at `lidar_origin`) and the keypoint rule leave visible, but all of them and all points,
+        where a fit's quality uses the subsamples its L_3D used (`chamfer_max_vertices`, `_points`; fewer
+        vertices lie farther from a point). For scoring bodies alike: the bench's fits and true bodies
+        (what a perfect fit would read). nan without points or visible vertices."""
+        vis = self.config.visibility
+        origin = np.zeros(3) if lidar_origin is None else np.asarray(lidar_origin, np.float64)
+        occluded = occluded_parts(person.keypoints[:, 2], vis.keypoint_conf_lidar)
+        vertices = np.asarray(vertices, np.float64)
+        visible = vertices[visible_vertices(vertices, self.faces_np, self.part_of_face_np, origin,
+                                            vis.culling_threshold, occluded)]
+        points = np.asarray(person.points, np.float64)
+        if not len(visible) or not len(points):
+            return float("nan"), float("nan")
+        to_points = cKDTree(points).query(visible)[0]
+        to_mesh = cKDTree(visible).query(points)[0]
+        return 0.5 * float(to_points.mean() + to_mesh.mean()), float(to_mesh.mean())
 
     def _visible_masks(self, batch: Batch, verts: np.ndarray) -> list[np.ndarray]:
         """Per person, (V,) bool: the vertices L_3D and ICP use (Eq. 1 and the keypoint rule)."""

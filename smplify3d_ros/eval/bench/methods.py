@@ -110,6 +110,12 @@ class Case:
     mpjpe_root_aligned: float
     flags: list[str] = field(default_factory=list)
     chamfer_m: float | None = None  # the fit's own chamfer to its points (fit.quality.chamfer_m; None: no points)
+    # the body's chamfer and its points' half, and the true body's, against the same points by one rule
+    # (`Fitter.surface_distances`: every visible vertex; the truth's is what a perfect fit would read)
+    scored_chamfer_m: float | None = None
+    scored_points_to_mesh_m: float | None = None
+    truth_chamfer_m: float | None = None
+    truth_points_to_mesh_m: float | None = None
     value: float | None = None  # the swept parameter of a study
     seconds: float = 0.0  # fit time of the whole scene's people (same for every person of the scene)
     people_in_fit: int = 1  # people that fit call fitted together: this person's share is seconds / this
@@ -164,7 +170,8 @@ def score(vertices: np.ndarray, joints: np.ndarray, truth: Any, root_aligned: bo
 
 
 def person_context(sim: Any, obs: Any, truth: Any, setup: Setup) -> dict[str, Any]:
-    """Per-person facts every method shares: distance, points, Eq. 9 density, occluded parts."""
+    """Per-person facts every method shares: distance, points, Eq. 9 density, occluded parts, the true
+    body's chamfer to the points."""
     from smplify3d_ros.fitting.visibility import occluded_parts
     from smplify3d_ros.sim.scene import make_mount
 
@@ -179,7 +186,10 @@ def person_context(sim: Any, obs: Any, truth: Any, setup: Setup) -> dict[str, An
         else 0.0
     )
     threshold = setup.config.fitting.visibility.keypoint_conf_image
+    chamfer, to_mesh = setup.fitters[None].surface_distances(obs, truth.vertices, lidar_origin)  # nan: no points
     return {
+        "truth_chamfer_m": _finite(chamfer),
+        "truth_points_to_mesh_m": _finite(to_mesh),
         "distance_m": float(np.hypot(hips[0], hips[2])),
         "heading_deg": heading_to_camera_deg(truth.params.root_orient, hips, mount.up_cam),
         "family": truth.family,
@@ -281,7 +291,10 @@ def evaluate_scene(
         seconds = time.perf_counter() - start
         for obs, ctx, (verts, joints, flags, chamfer) in zip(people, context, bodies, strict=True):
             errors = score(verts, joints, truth[obs.person_id], method.root_aligned)
+            surface = (setup.fitters[None].surface_distances(obs, verts, observed.lidar_origin)
+                       if chamfer is not None else (float("nan"), float("nan")))
             cases.append(Case(name, sensor, seed, obs.person_id, **ctx, **errors, flags=flags, chamfer_m=chamfer,
+                              scored_chamfer_m=_finite(surface[0]), scored_points_to_mesh_m=_finite(surface[1]),
                               value=value, seconds=seconds, people_in_fit=len(people)))
     return cases
 

@@ -29,6 +29,8 @@ from smplify3d_ros.eval.bench.report import (
     family_rows,
     markdown_table,
     summarize,
+    surface_line,
+    surface_summary,
     target_lines,
     verdict_line,
 )
@@ -135,8 +137,11 @@ def run_main(run: BenchRun, setup_for: Callable[..., Setup], default_distance: t
                    "from the image alone):", markdown_table(subset)]
     extra["chamfer_verdict"] = [chamfer_verdict(cases, m, missed_m, bench.off_mpjpe_mm)
                                 for m in (ROBOT_METHOD, "smplify3d_three_stage") if m in run.methods]
+    extra["surface"] = [surface_summary(cases, m) for m in (ROBOT_METHOD, "smplify3d_three_stage")
+                        if m in run.methods]
     plots = _main_plots(run, rows, extra, distance)
-    notes = [coverage_line(coverage), *map(verdict_line, extra["chamfer_verdict"])]
+    notes = [coverage_line(coverage), *map(verdict_line, extra["chamfer_verdict"]),
+             *map(surface_line, extra["surface"])]
     notes += target_lines(rows) + [f"(people with LiDAR) {x}" for x in target_lines(subset)]
     return Report(rows, cases, "\n\n".join(tables), plots, notes, extra, distance)
 
