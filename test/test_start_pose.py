@@ -61,3 +61,73 @@ def test_forearms_held_towards_the_camera_are_found_from_the_bent_start(anny_mod
     # measured: 0.54 m from the straight start (the arms left hanging), 0.10 m from the bent one
     assert error[90.0] < 0.15
     assert error[90.0] < 0.3 * error[0.0]
+
+
+LEGS = ("left_hip", "right_hip", "left_knee", "right_knee")
+
+
+def _legs_fitter(model, hypotheses: int) -> Fitter:
+    config = load_config(overrides={"fitting": {"init": {"flexed_leg_hypotheses": hypotheses}}})
+    return Fitter(config.fitting, model)
+
+
+def test_the_flexed_leg_start_flexes_hips_and_knees_only(anny_model):
+    fitter = _legs_fitter(anny_model, 2)
+    init = fitter.config.init
+    flexed = torch.as_tensor(fitter._flexed_start_pose)[None]
+    angles = (anny_model.pose_to_anatomical(flexed) + anny_model.anat_rest.to(flexed.dtype))[0].numpy()
+    index = {name: anny_model.joint_names.index(name) for name in (*LEGS, *ELBOWS)}
+    for name, degrees in (("hip", init.start_hip_flexion_deg), ("knee", init.start_knee_flexion_deg),
+                          ("elbow", init.start_elbow_flexion_deg)):
+        for side in ("left", "right"):
+            np.testing.assert_allclose(angles[index[f"{side}_{name}"], 0], np.deg2rad(degrees), atol=1e-6)
+    others = np.delete(angles, list(index.values()), axis=0)
+    np.testing.assert_allclose(others, 0.0, atol=1e-6)
+
+
+def _sitting_person(model, rng):
+    """A person 3.5 m in front of the camera, sitting (hips and knees flexed 90°, no chair drawn), facing
+    it: the thighs point at the camera, which sees them end-on. Perfect keypoints, points on the front."""
+    angles = torch.zeros(1, len(model.joint_names), 3, dtype=torch.float64)
+    for name in LEGS:
+        angles[0, model.joint_names.index(name), 0] = np.deg2rad(90.0)
+    pose = model.anatomical_to_pose(angles, from_neutral=True)[0].numpy()
+    truth = BodyParams(model.name, np.full(len(model.shape_names), 0.5), pose, upright_root_orient(0.0),
+                       np.array([0.0, 0.4, 3.5]))
+    body = model.posed([truth])[0]
+    K = default_intrinsics()
+    uv = project(torch.as_tensor(body.keypoints3d)[None], torch.as_tensor(K))[0].numpy()
+    keypoints = np.concatenate([uv, np.ones((17, 1))], axis=1)
+    faces = model.faces.cpu().numpy()
+    front = front_facing(body.vertices, faces, np.zeros(3), 0.0) & (model.part_of_face.cpu().numpy() >= 0)
+    points = sample_surface(body.vertices, faces[front], 300, 0.005, rng).astype(np.float32)
+    return PersonObservation(0, keypoints, np.array([*uv.min(0), *uv.max(0)]), points), K, body
+
+
+def test_thighs_pointing_at_the_camera_are_found_from_the_flexed_leg_start(anny_model, rng):
+    obs, K, body = _sitting_person(anny_model, rng)
+    knees = [13, 14]
+    error = {}
+    for hypotheses in (0, 2):
+        fit = _legs_fitter(anny_model, hypotheses).fit([obs], K)[0]
+        error[hypotheses] = float(np.linalg.norm(fit.keypoints3d[knees] - body.keypoints3d[knees], axis=1).mean())
+    print(f"knee error: standing starts only {1000 * error[0]:.0f} mm, with flexed-leg starts {1000 * error[2]:.0f} mm")
+    assert error[2] < 0.08 and error[0] > 2 * error[2], error  # measured: 363 mm against 23 mm
+
+
+def test_no_flexed_leg_start_where_the_image_shows_no_thigh(anny_model, rng):
+    import dataclasses
+
+    from smplify3d_ros.fitting.options import FitOptions
+
+    obs, K, _ = _sitting_person(anny_model, rng)
+    fitter = _legs_fitter(anny_model, 2)
+    hidden = obs.keypoints.copy()
+    hidden[[13, 14], 2] = 0.1  # both knees hidden
+    counts = []
+    for keypoints in (obs.keypoints, hidden):
+        batch = fitter._start([dataclasses.replace(obs, keypoints=keypoints)], K, None, FitOptions())
+        fitter._initialize(batch)
+        counts.append(len(batch.hypotheses[0]))
+    headings = counts[1]
+    assert counts[0] == headings + min(2, headings)

@@ -99,6 +99,9 @@ class InitConfig:
     refine_free_space: float
     refine_max_vertices: int
     start_elbow_flexion_deg: float
+    flexed_leg_hypotheses: int
+    start_hip_flexion_deg: float
+    start_knee_flexion_deg: float
 
     def __post_init__(self) -> None:
         for name in ("body_height", "torso_height", "shoulder_width", "hip_width", "refine_lr", "limb_radius",
@@ -112,6 +115,9 @@ class InitConfig:
         require(self.few_points_max_ratio >= 0.0, "few_points_max_ratio must be >= 0")
         require(self.refine_iterations >= 0, "refine_iterations must be >= 0")
         require(0 <= self.start_elbow_flexion_deg <= 150, "start_elbow_flexion_deg must be in [0, 150]")
+        require(self.flexed_leg_hypotheses >= 0, "flexed_leg_hypotheses must be >= 0 (0: none)")
+        require(0 <= self.start_hip_flexion_deg <= 125, "start_hip_flexion_deg must be in [0, 125]")
+        require(0 <= self.start_knee_flexion_deg <= 150, "start_knee_flexion_deg must be in [0, 150]")
         require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")
         require(self.hypothesis_iterations >= 0, "hypothesis_iterations must be >= 0 (at most refine_iterations run)")
         require(self.heading_hypotheses >= 1, "heading_hypotheses must be >= 1")

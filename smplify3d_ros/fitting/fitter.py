@@ -135,21 +135,28 @@ class Fitter:
         self.dtype = self.model.dtype
         self.faces_np = self.model.faces.cpu().numpy()
         self._start_pose = self._builtin_start_pose()
+        self._flexed_start_pose = self._builtin_start_pose(self.config.init.start_hip_flexion_deg,
+                                                           self.config.init.start_knee_flexion_deg)
         self._keypoints_only = torch.zeros(1, dtype=torch.long, device=self.device)
         self.part_of_face_np = self.model.part_of_face.cpu().numpy()
         self._around = free_space.vertex_faces(self.faces_np, int(self.faces_np.max()) + 1)
 
-    def _builtin_start_pose(self) -> np.ndarray:
+    def _builtin_start_pose(self, hip_deg: float = 0.0, knee_deg: float = 0.0) -> np.ndarray:
         """(J, 3) pose the built-in initializer starts every person from: the anatomical neutral
         (standing, arms hanging, legs straight), not the model's rest pose (Anny's is an A-pose), with the
-        elbows flexed by `init.start_elbow_flexion_deg`. A straight elbow is a singular start: there, no
-        small turn of the upper arm moves the wrist, and the solver leaves a forearm the image shows
-        across the body or held forward pointing at the camera (docs/benchmarks.md, "A bent elbow")."""
+        elbows flexed by `init.start_elbow_flexion_deg`, and the hips and knees by `hip_deg` and
+        `knee_deg`. A straight elbow is a singular start: there, no small turn of the upper arm moves the
+        wrist, and the solver leaves a forearm the image shows across the body or held forward pointing at
+        the camera (docs/benchmarks.md, "A bent elbow"). A straight hip is one for the thigh of a person
+        facing the camera or turned away: a small flexion moves the knee along the ray, which the image
+        does not see, so a sitting or crouching person's thighs stay hanging (the flexed-leg start)."""
         names = list(self.model.joint_names)
         angles = torch.zeros(1, len(names), 3, dtype=self.dtype)
-        for name in ("left_elbow", "right_elbow"):
-            if name in names:
-                angles[0, names.index(name), 0] = math.radians(self.config.init.start_elbow_flexion_deg)
+        flexion = {"elbow": self.config.init.start_elbow_flexion_deg, "hip": hip_deg, "knee": knee_deg}
+        for joint, degrees in flexion.items():
+            for name in (f"left_{joint}", f"right_{joint}"):
+                if name in names:
+                    angles[0, names.index(name), 0] = math.radians(degrees)
         return self.model.anatomical_to_pose(angles, from_neutral=True)[0].cpu().double().numpy()
 
     def fit(
@@ -213,7 +220,10 @@ class Fitter:
 
     def _initialize(self, batch: Batch) -> None:
         """Step 1: an external estimate of this model when a person has one, else the built-in one's
-        hypotheses (the first stands in until `_refine_builtin` picks one)."""
+        hypotheses (the first stands in until `_refine_builtin` picks one): each heading hypothesis
+        standing, then the first `init.flexed_leg_hypotheses` of them again with flexed legs where the
+        image shows a thigh (`initializer.thigh_seen`), then the person's own `hypothesis` (a track's warm
+        start), if any."""
         cfg = self.config
         mean_shape = self.model.mean_shape().cpu().double().numpy()
         K = batch.K.cpu().double().numpy()
@@ -230,9 +240,13 @@ class Fitter:
                             p.person_id, p.init.model, self.model.name)
             hypotheses = initializer.builtin_hypotheses(p, K, cfg.init, bool(batch.use_lidar[i]),
                                                         len(p.points) >= cfg.min_points_depth)
-            for root, pelvis in hypotheses:
-                batch.hypotheses[i].append(BodyParams(self.model.name, mean_shape.copy(),
-                                                      self._start_pose.copy(), root, pelvis))
+            starts = [(self._start_pose, root, pelvis) for root, pelvis in hypotheses]
+            if initializer.thigh_seen(p, cfg.init):
+                starts += [(self._flexed_start_pose, root, pelvis)
+                           for root, pelvis in hypotheses[: cfg.init.flexed_leg_hypotheses]]
+            for pose, root, pelvis in starts:
+                batch.hypotheses[i].append(BodyParams(self.model.name, mean_shape.copy(), pose.copy(),
+                                                      root.copy(), pelvis.copy()))
             if p.hypothesis is not None and p.hypothesis.model == self.model.name:
                 batch.hypotheses[i].append(p.hypothesis.copy())
             params.append(batch.hypotheses[i][0])

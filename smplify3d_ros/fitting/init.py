@@ -84,6 +84,15 @@ def size_depths(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, whole_bo
     return depths
 
 
+def thigh_seen(obs: PersonObservation, cfg: InitConfig) -> bool:
+    """Whether the keypoints show a thigh (a hip and its knee at `limb_keypoint_conf`): only then can the
+    objective tell a flexed-leg start from a standing one. With the legs hidden, nothing but the priors
+    decides, and a walker taken for someone sitting stays so for the frames that their track keeps it."""
+    kp = obs.keypoints
+    return any(min(kp[KP[f"{side}_hip"], 2], kp[KP[f"{side}_knee"], 2]) >= cfg.limb_keypoint_conf
+               for side in ("left", "right"))
+
+
 def predicted_depth(obs: PersonObservation) -> float | None:
     """The depth at which a tracked person's track expects their pelvis (None: untracked)."""
     if obs.predicted_pelvis is not None and np.isfinite(obs.predicted_pelvis[2]) and obs.predicted_pelvis[2] > 0:
