@@ -82,6 +82,7 @@ def test_tiny_run_writes_the_json_schema_and_a_plot(tmp_path, capsys):
     assert "wall time" in printed and "seeds 1000-1000: report" in printed
     if case["chamfer_m"] is not None:
         assert f"{methods.ROBOT_METHOD}: 1 fits with points, every visible vertex: chamfer" in printed
+        assert robot["truth_chamfer_median_mm"] == robot["truth_chamfer_mm"]  # one fit: median = mean
 
 
 def test_tuning_seeds_are_named_as_such(tmp_path, capsys):

@@ -146,24 +146,25 @@ def surface_summary(cases: Sequence[Case], method: str) -> dict[str, Any]:
     pick = [c for c in cases if c.method == method and c.scored_chamfer_m is not None
             and c.truth_chamfer_m is not None]
 
-    def mean_mm(values: list[float | None]) -> float | None:
-        kept = [v for v in values if v is not None]
-        return round(1000.0 * float(np.mean(kept)), 1) if kept else None
-
-    return {"method": method, "fits_with_points": len(pick),
-            "chamfer_mm": mean_mm([c.scored_chamfer_m for c in pick]),
-            "truth_chamfer_mm": mean_mm([c.truth_chamfer_m for c in pick]),
-            "points_to_mesh_mm": mean_mm([c.scored_points_to_mesh_m for c in pick]),
-            "truth_points_to_mesh_mm": mean_mm([c.truth_points_to_mesh_m for c in pick])}
+    fields = {"chamfer": ("scored_chamfer_m", "truth_chamfer_m"),
+              "points_to_mesh": ("scored_points_to_mesh_m", "truth_points_to_mesh_m")}
+    out: dict[str, Any] = {"method": method, "fits_with_points": len(pick)}
+    for name, (fit_key, truth_key) in fields.items():
+        for prefix, key in (("", fit_key), ("truth_", truth_key)):
+            values = np.array([getattr(c, key) for c in pick], dtype=np.float64)
+            out[f"{prefix}{name}_mm"] = round(1000.0 * float(values.mean()), 1) if len(values) else None
+            out[f"{prefix}{name}_median_mm"] = round(1000.0 * float(np.median(values)), 1) if len(values) else None
+    return out
 
 
 def surface_line(v: dict[str, Any]) -> str:
-    def mm(x: float | None) -> str:
-        return "-" if x is None else f"{x:.1f}"
+    def mm(key: str) -> str:
+        mean, median = v[f"{key}_mm"], v[f"{key}_median_mm"]
+        return "-" if mean is None else f"{mean:.1f} mm (median {median:.1f})"
 
     return (f"{v['method']}: {v['fits_with_points']} fits with points, every visible vertex: chamfer "
-            f"{mm(v['chamfer_mm'])} mm (the true bodies: {mm(v['truth_chamfer_mm'])} mm); points to the mesh "
-            f"{mm(v['points_to_mesh_mm'])} mm (true bodies: {mm(v['truth_points_to_mesh_mm'])} mm)")
+            f"{mm('chamfer')}, the true bodies {mm('truth_chamfer')}; points to the mesh "
+            f"{mm('points_to_mesh')}, the true bodies {mm('truth_points_to_mesh')}")
 
 
 def verdict_line(v: dict[str, Any]) -> str:
