@@ -15,7 +15,8 @@ position and heading are those of the real camera:
    torso direction, never the face alone).
 3. Limbs: a short fit of pose, orientation and position to the keypoints, the points and the depth of
    the points that hit each limb (`fitting.limbs`), with the anatomical priors only, from every
-   hypothesis; the full objective picks the hypothesis (`fitter.Fitter._refine_builtin`).
+   hypothesis, standing and, for the first headings where a thigh is seen (`thigh_seen`), with flexed
+   legs; the full objective picks the hypothesis (`fitter.Fitter._refine_builtin`).
 """
 
 from __future__ import annotations
