@@ -32,15 +32,15 @@ def test_the_start_pose_is_the_anatomical_neutral_with_the_elbows_flexed(anny_mo
     np.testing.assert_allclose(np.delete(angles[elbows], 0, axis=1), 0.0, atol=1e-6)
 
 
-def _carrying_person(model, rng):
-    """A person 3 m in front of the camera holding both forearms forward, pointing at it (the image sees
-    them end-on): perfect keypoints, points over the surface facing the sensor."""
+def _facing_person(model, rng, flexed: tuple[str, ...], degrees: float, transl: tuple[float, float, float]):
+    """A person facing the camera at `transl` with the joints `flexed` by `degrees` from the anatomical
+    neutral: perfect keypoints, 300 points over the surface facing the sensor."""
     angles = torch.zeros(1, len(model.joint_names), 3, dtype=torch.float64)
-    for name in ELBOWS:
-        angles[0, model.joint_names.index(name), 0] = np.deg2rad(95.0)
+    for name in flexed:
+        angles[0, model.joint_names.index(name), 0] = np.deg2rad(degrees)
     pose = model.anatomical_to_pose(angles, from_neutral=True)[0].numpy()
     truth = BodyParams(model.name, np.full(len(model.shape_names), 0.5), pose, upright_root_orient(0.0),
-                       np.array([0.0, 0.3, 3.0]))
+                       np.array(transl))
     body = model.posed([truth])[0]
     K = default_intrinsics()
     uv = project(torch.as_tensor(body.keypoints3d)[None], torch.as_tensor(K))[0].numpy()
@@ -49,6 +49,12 @@ def _carrying_person(model, rng):
     front = front_facing(body.vertices, faces, np.zeros(3), 0.0) & (model.part_of_face.cpu().numpy() >= 0)
     points = sample_surface(body.vertices, faces[front], 300, 0.005, rng).astype(np.float32)
     return PersonObservation(0, keypoints, np.array([*uv.min(0), *uv.max(0)]), points), K, body
+
+
+def _carrying_person(model, rng):
+    """A person 3 m in front of the camera holding both forearms forward, pointing at it (the image sees
+    them end-on)."""
+    return _facing_person(model, rng, ELBOWS, 95.0, (0.0, 0.3, 3.0))
 
 
 def test_forearms_held_towards_the_camera_are_found_from_the_bent_start(anny_model, rng):
@@ -87,21 +93,8 @@ def test_the_flexed_leg_start_flexes_hips_and_knees_only(anny_model):
 
 def _sitting_person(model, rng):
     """A person 3.5 m in front of the camera, sitting (hips and knees flexed 90°, no chair drawn), facing
-    it: the thighs point at the camera, which sees them end-on. Perfect keypoints, points on the front."""
-    angles = torch.zeros(1, len(model.joint_names), 3, dtype=torch.float64)
-    for name in LEGS:
-        angles[0, model.joint_names.index(name), 0] = np.deg2rad(90.0)
-    pose = model.anatomical_to_pose(angles, from_neutral=True)[0].numpy()
-    truth = BodyParams(model.name, np.full(len(model.shape_names), 0.5), pose, upright_root_orient(0.0),
-                       np.array([0.0, 0.4, 3.5]))
-    body = model.posed([truth])[0]
-    K = default_intrinsics()
-    uv = project(torch.as_tensor(body.keypoints3d)[None], torch.as_tensor(K))[0].numpy()
-    keypoints = np.concatenate([uv, np.ones((17, 1))], axis=1)
-    faces = model.faces.cpu().numpy()
-    front = front_facing(body.vertices, faces, np.zeros(3), 0.0) & (model.part_of_face.cpu().numpy() >= 0)
-    points = sample_surface(body.vertices, faces[front], 300, 0.005, rng).astype(np.float32)
-    return PersonObservation(0, keypoints, np.array([*uv.min(0), *uv.max(0)]), points), K, body
+    it: the thighs point at the camera, which sees them end-on."""
+    return _facing_person(model, rng, LEGS, 90.0, (0.0, 0.4, 3.5))
 
 
 def test_thighs_pointing_at_the_camera_are_found_from_the_flexed_leg_start(anny_model, rng):
