@@ -87,8 +87,8 @@ def size_depths(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, whole_bo
 
 def thigh_seen(obs: PersonObservation, cfg: InitConfig) -> bool:
     """Whether the keypoints show a thigh (a hip and its knee at `limb_keypoint_conf`): only then can the
-    objective tell a flexed-leg start from a standing one. With the legs hidden, nothing but the priors
-    decides, and a walker taken for someone sitting stays so for the frames that their track keeps it."""
+    objective tell a flexed-leg start from a standing one; with the legs hidden, nothing but the priors
+    decides between them (docs/benchmarks.md, "Flexed-leg starts")."""
     kp = obs.keypoints
     return any(min(kp[KP[f"{side}_hip"], 2], kp[KP[f"{side}_knee"], 2]) >= cfg.limb_keypoint_conf
                for side in ("left", "right"))
