@@ -19,7 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from smplify3d_ros.body import BodyModel, load_body_model
 from smplify3d_ros.body.base import PARAM_FIELDS
@@ -484,9 +483,11 @@ class Fitter:
         points = np.asarray(person.points, np.float64)
         if not len(visible) or not len(points):
             return float("nan"), float("nan")
-        to_points = cKDTree(points).query(visible)[0]
-        to_mesh = cKDTree(visible).query(points)[0]
-        return 0.5 * float(to_points.mean() + to_mesh.mean()), float(to_mesh.mean())
+        # the same nearest-neighbour search as the fit's own quality (`_results`)
+        v, x = torch.as_tensor(visible)[None], torch.as_tensor(points)[None]
+        to_points = nearest_sq_distances(v, x, torch.ones(x.shape[:2], dtype=torch.bool)).sqrt().mean()
+        to_mesh = nearest_sq_distances(x, v, torch.ones(v.shape[:2], dtype=torch.bool)).sqrt().mean()
+        return 0.5 * float(to_points + to_mesh), float(to_mesh)
 
     def _visible_masks(self, batch: Batch, verts: np.ndarray) -> list[np.ndarray]:
         """Per person, (V,) bool: the vertices L_3D and ICP use (Eq. 1 and the keypoint rule)."""

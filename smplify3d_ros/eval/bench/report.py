@@ -139,7 +139,7 @@ def chamfer_verdict(cases: Sequence[Case], method: str, missed_m: float, off_mm:
 
 
 def surface_summary(cases: Sequence[Case], method: str) -> dict[str, Any]:
-    """Mean chamfer and points-to-mesh distance (mm) of `method`'s fits with points, beside those of the
+    """Mean and median chamfer and points-to-mesh distance (mm) of `method`'s fits with points, beside those of the
     true bodies against the same points, both by one rule (`Case.scored_chamfer_m`): how near a perfect
     fit could come. (The chamfer's mesh half counts every vertex facing the LiDAR, hidden by another body
     or between the rings of a ring scanner or not, so the truth's own chamfer is far from 0.)"""
