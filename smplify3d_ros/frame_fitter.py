@@ -20,15 +20,19 @@ import threading
 import time
 from collections import Counter, OrderedDict
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
 from smplify3d_ros.camera import transform_points, undistort_pixels
 from smplify3d_ros.config import Config, load_config
-from smplify3d_ros.fitting.config import FittingConfig
+from smplify3d_ros.fitting.config import FittingConfig, InitConfig
 from smplify3d_ros.fitting.fitter import FitOptions, Fitter
+from smplify3d_ros.fitting.init import nearest_depth
+from smplify3d_ros.lidar.associate import person_skeleton
 from smplify3d_ros.lidar.config import ExtractionConfig
 from smplify3d_ros.lidar.extract import ExtractionResult, extract_people
+from smplify3d_ros.lidar.ground import GroundPlane
 from smplify3d_ros.settings import to_dict
 from smplify3d_ros.tracking.background import BackgroundError, BackgroundFitter
 from smplify3d_ros.tracking.tracker import Track, Tracker, WarmStart
@@ -97,23 +101,48 @@ def undistorted_keypoints(frame: Frame) -> np.ndarray:
     return _undistorted(frame.keypoints, frame.camera)
 
 
-def extract_frame_people(frame: Frame, config: ExtractionConfig,
-                         expected_depth: np.ndarray | None = None) -> tuple[np.ndarray, ExtractionResult]:
+def extract_frame_people(frame: Frame, config: ExtractionConfig, expected_depth: np.ndarray | None = None,
+                         init: InitConfig | None = None) -> tuple[np.ndarray, ExtractionResult]:
     """The frame's undistorted keypoints and each person's points cut out of its scan (camera frame);
-    `expected_depth`: optional (P, 2) depth and tolerance where each person should be (a track's). The
-    frame's `bystanders` take part in the extraction (their points are theirs) but are not returned."""
+    `expected_depth`: optional (P, 2) depth and tolerance where each person should be (a track's);
+    `init`: the fitter's initializer settings, whose `nearest_depth` (the person's size in the image)
+    bounds how near each person's points may lie. The frame's `bystanders` take part in the extraction
+    (their points are theirs) but are not returned."""
     undistorted = undistorted_keypoints(frame)
     points_cam = transform_points(frame.points_lidar, frame.T_cam_lidar).astype(np.float32)
     pinhole = CameraModel(frame.camera.K, frame.camera.width, frame.camera.height)
     bystanders = _undistorted(frame.bystanders if frame.bystanders is not None else np.zeros((0, 17, 3)),
                               frame.camera)
+    everyone = np.concatenate([undistorted, bystanders])
     n = len(undistorted)
     if expected_depth is not None:  # bystanders: expected anywhere
         expected_depth = np.concatenate([np.asarray(expected_depth, np.float64).reshape(n, 2),
                                          np.full((len(bystanders), 2), np.nan)])
-    result = extract_people(points_cam, np.concatenate([undistorted, bystanders]), pinhole, config, expected_depth)
+    nearest = None if init is None else partial(_nearest_depths, everyone, pinhole, config, init)
+    result = extract_people(points_cam, everyone, pinhole, config, expected_depth, nearest)
     labels = np.where(result.labels >= n, -1, result.labels).astype(np.int32)
     return undistorted, replace(result, people=result.people[:n], labels=labels)
+
+
+def ground_vector(plane: GroundPlane) -> np.ndarray | None:
+    """(4,) n, d of a fitted ground plane, as `PersonObservation.ground`; None for the fallback height band
+    (the initializer stands people on the ground: an assumed height is not a plane)."""
+    return np.array([*plane.normal, plane.offset], dtype=np.float64) if plane.fitted else None
+
+
+def _nearest_depths(keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig, init: InitConfig,
+                    plane: GroundPlane) -> np.ndarray:
+    """(P,) `fitting.init.nearest_depth` of undistorted keypoint sets, each with the extraction's box, on
+    the frame's ground plane when one was fitted (NaN: no bound)."""
+    ground = ground_vector(plane)
+    out = np.full(len(keypoints), np.nan)
+    for k, kp in enumerate(keypoints):
+        skeleton = person_skeleton(kp, camera, config)
+        if skeleton is not None:
+            obs = PersonObservation(person_id=-1, keypoints=kp, bbox=skeleton.bbox, points=np.zeros((0, 3)),
+                                    ground=ground)
+            out[k] = nearest_depth(obs, camera.K, init)
+    return out
 
 
 class FrameFitter:
@@ -204,10 +233,8 @@ class FrameFitter:
         expected = None
         if self.tracker is not None and len(frame.person_ids) == len(frame.keypoints):
             expected = self.tracker.expected_depth(frame.person_ids, frame.stamp_ns)
-        undistorted, extraction = extract_frame_people(frame, self.config.lidar, expected)
-        plane = extraction.ground
-        # the initializer stands people on the ground; a fallback height band is an assumption, not a plane
-        ground = np.array([*plane.normal, plane.offset], dtype=np.float64) if plane.fitted else None
+        undistorted, extraction = extract_frame_people(frame, self.config.lidar, expected, self.config.fitting.init)
+        ground = ground_vector(extraction.ground)
         people = []
         for i, person in enumerate(extraction.people):
             pid = int(frame.person_ids[i]) if i < len(frame.person_ids) else -1

@@ -93,6 +93,24 @@ def test_a_persons_own_points_are_kept(anny_model):
     assert len(obs.points) and not points_too_near(obs, K, cfg)
 
 
+def test_one_size_cue_alone_may_drop_a_persons_own_points(anny_model):
+    """Only the legs seen (the upper body's keypoints guessed, 0.1) and both ankles a few pixels too
+    high (a foot lifted, or an ankle guessed behind something): ground contact, the one size cue left,
+    puts the person more than twice as far as their own points. With `points_min_depth_cues` 1 those
+    points are dropped as an occluder's (the default: on the tuning seeds a person 9.6 m out behind an
+    object 2.5 m out had only this cue, and the object's points were the ones dropped); asking two
+    cues for the bound keeps them."""
+    cfg = load_config().fitting.init
+    obs, _, K = _person_on_ground(anny_model)
+    kp = obs.keypoints.copy()
+    kp[:11, 2] = 0.1
+    kp[[KP["left_ankle"], KP["right_ankle"]], 1] -= 9.0
+    obs = dataclasses.replace(obs, keypoints=kp)
+    assert ground_depth(obs, K, cfg) > 2.0 * float(np.median(obs.points[:, 2]))
+    assert cfg.points_min_depth_cues == 1 and points_too_near(obs, K, cfg)
+    assert not points_too_near(obs, K, dataclasses.replace(cfg, points_min_depth_cues=2))
+
+
 def _upper_body_only(obs, keep_points):
     """The person with the lower body hidden: hips, knees and ankles guessed (confidence 0.1), the box
     around the rest, no ground plane, and only `keep_points` points."""

@@ -502,10 +502,12 @@ def test_an_occluder_over_the_joints_seen_with_low_confidence_is_not_the_person(
     """Simulated robot-path scenes (tuning seeds 125 and 274): something in front hides most of a person
     10-11 m out; the detector still reports the hidden joints, with low confidence, and the occluder
     fills the mask there. Counting every covered part as 1, the occluder won (the fit stood 2.4 m and
-    7 m in front of the person); weighted by the parts' keypoint scores, the person's own points win."""
+    7 m in front of the person); weighted by the parts' keypoint scores, the person's own points win
+    (the rules added since, the purity floor and thin parts' refutation, also find them: off here)."""
     sim, k, own = robot_scene_person(seed, n_people, person)
     assert len(own) >= 10
-    for config, keeps_own in ((make_config(coverage_full_score=1e-6), False), (CONFIG, True)):
+    weighted_only = make_config(coverage_full_score=1e-6, purity_min_room=1e-6, thin_refute_ratio=0.0)
+    for config, keeps_own in ((weighted_only, False), (CONFIG, True)):
         taken = extracted(sim, k, config).indices
         found = len(taken) > 0 and np.isin(taken, own).mean() > 0.9
         assert found == keeps_own, (len(taken), int(np.isin(taken, own).sum()), len(own))
@@ -538,6 +540,53 @@ def test_an_object_in_front_of_the_confident_joints_leaves_the_person_their_own_
     for config in (CONFIG, make_config(occluder_min_points=0)):
         taken = extracted(sim, k, config).indices
         assert len(taken) >= 0.7 * len(own) and np.isin(taken, own).mean() > 0.9, (len(taken), len(own))
+
+
+def test_a_cluster_far_nearer_than_the_persons_size_in_the_image_allows_is_not_theirs():
+    """A simulated robot-path scene (tuning seed 29 at 8-12 m): a person bending over 7.8 m out, 39 %
+    visible, five of their points seen, behind a box 2.2 m out whose 46 points fill their mask over the
+    joints the detector guessed. The box scored as the person, and the fitter then dropped those points
+    as far nearer than the person's size in the image allows (`points_too_near`): the fit from the image
+    alone stood 1.2 m off. With the fitter's bound (`fitting.init.nearest_depth`: half the nearest of
+    ground contact and torso, 4.9 m) applied in the extraction, the box is passed over and the person
+    keeps their own points. (The purity floor, `purity_min_room`, also passes over this box: off here.)"""
+    from smplify3d_ros.config import load_config
+    from smplify3d_ros.frame_fitter import extract_frame_people
+
+    sim, k, own = robot_scene_person(29, 3, 1, distance_range=(8.0, 12.0))
+    init = load_config().fitting.init
+    assert len(own) >= 3
+    without = extract_frame_people(sim.frame, make_config(purity_min_room=1e-6))[1].people[k]
+    bounded = extract_frame_people(sim.frame, make_config(purity_min_room=1e-6), init=init)[1].people[k]
+    assert len(without.indices) >= 20 and not np.isin(without.indices, own).any()
+    assert len(bounded.indices) >= 3 and np.isin(bounded.indices, own).all(), bounded.indices
+
+
+def test_a_mask_covering_the_whole_box_is_no_evidence_of_a_body():
+    """A simulated robot-path scene (tuning seed 109 at 2-8 m): a person 6.6 m out, 19 % visible, 13 of
+    their points seen, behind an object 2.3 m out. At the object's depth the person's body mask covers
+    98 % of their box, so "all its box points are mask points" (purity) said nothing, yet rescaled by
+    the 2 % left it read as fully isolated, and the object, which goes on far past the box (boundedness
+    0.03), was taken for the person. Rescaled by no less than `purity_min_room` it is no body."""
+    sim, k, own = robot_scene_person(109, 3, 2, distance_range=(2.0, 8.0))
+    assert len(own) >= 10
+    for config, keeps_own in ((make_config(purity_min_room=1e-6), False), (CONFIG, True)):
+        taken = extracted(sim, k, config).indices
+        assert (len(taken) > 0 and np.isin(taken, own).mean() > 0.9) == keeps_own, (len(taken), len(own))
+
+
+def test_thin_parts_seen_behind_an_object_refute_it():
+    """A simulated robot-path scene (tuning seed 39 at 2-8 m): a person 3.9 m out reaching up, 37 %
+    visible (45 points: the right arm and leg, a little of the head and torso), behind an object 2.6 m
+    out that covers their head, torso and right thigh (199 mask points). The wide parts could not tell
+    (the object is in front of them), and the shin and forearm, whose cores show 13 and 6 of the
+    person's points behind the object's 2 and 1, did not count: the object was taken, and the fit stood
+    1.4 m off. Thin parts refute at `thin_refute_ratio` (4) with `thin_refute_min_votes` (3)."""
+    sim, k, own = robot_scene_person(39, 3, 1, distance_range=(2.0, 8.0))
+    assert len(own) >= 30
+    for config, keeps_own in ((make_config(thin_refute_ratio=0.0), False), (CONFIG, True)):
+        taken = extracted(sim, k, config).indices
+        assert (len(taken) > 0 and np.isin(taken, own).mean() > 0.9) == keeps_own, (len(taken), len(own))
 
 
 def test_a_person_merged_with_the_post_they_lean_on_keeps_their_points():

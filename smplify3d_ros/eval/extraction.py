@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from smplify3d_ros.fitting.config import InitConfig
 from smplify3d_ros.keypoints import HIP_INDICES
 from smplify3d_ros.lidar.config import ExtractionConfig
 from smplify3d_ros.sim.config import SimConfig
@@ -57,15 +58,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sensor", default="vlp16", help="simulated LiDAR (sim.lidar.sensors key)")
 
 
-def evaluate_scene(seed: int, sim_config: SimConfig, config: ExtractionConfig, sensor: str) -> tuple[list[Case], float]:
-    """Cases of one simulated scene and the extraction time (s)."""
+def evaluate_scene(seed: int, sim_config: SimConfig, config: ExtractionConfig, sensor: str,
+                   init: InitConfig | None = None) -> tuple[list[Case], float]:
+    """Cases of one simulated scene and the extraction time (s); `init`: the fitter's initializer settings,
+    whose image-size bound on each person's depth the extraction applies as the node's does."""
     from smplify3d_ros.frame_fitter import extract_frame_people  # torch and trimesh: not at import
     from smplify3d_ros.sim.world import simulate_scene
 
     sim = simulate_scene(seed, sim_config, sensor=sensor)
     frame = sim.frame
     start = time.perf_counter()
-    _, result = extract_frame_people(frame, config)
+    _, result = extract_frame_people(frame, config, init=init)
     elapsed = time.perf_counter() - start
     truth = np.asarray(sim.point_labels)
     people = {p.person_id: p for p in sim.people}
@@ -129,11 +132,11 @@ def run(args: argparse.Namespace) -> int:
     from smplify3d_ros.config import load_config
     from smplify3d_ros.sim.config import load_sim_config
 
-    lidar, sim = load_config(args.params).lidar, load_sim_config(args.params)
+    config, sim = load_config(args.params), load_sim_config(args.params)
     cases: list[Case] = []
     times = []
     for seed in range(args.seed, args.seed + args.scenes):
-        scene_cases, elapsed = evaluate_scene(seed, sim, lidar, args.sensor)
+        scene_cases, elapsed = evaluate_scene(seed, sim, config.lidar, args.sensor, config.fitting.init)
         cases += scene_cases
         times.append(elapsed)
     timing_ms = 1000.0 * float(np.median(times)) if times else 0.0

@@ -141,14 +141,23 @@ def depth_from_few_points(obs: PersonObservation, K: np.ndarray, cfg: InitConfig
     return predicted_depth(obs) is None and few_points_depth(obs, K, cfg) is not None
 
 
-def points_too_near(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> bool:
-    """Whether the person's points lie nearer than `points_min_depth_ratio` x the nearest whole-body
-    `size_depths`: no foreshortening shrinks every length of a body that much, so they belong to an
-    occluder in front (a box at 2 m taken for a person at 8 m whose keypoints show above it)."""
-    if len(obs.points) == 0 or cfg.points_min_depth_ratio <= 0.0:
-        return False
+def nearest_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> float:
+    """The depth (m) nearer than which the person's points cannot lie: `points_min_depth_ratio` x the
+    nearest whole-body `size_depths`, since no foreshortening shrinks every length of a body that much,
+    when at least `points_min_depth_cues` of them are known (NaN: no bound): one alone can be off more
+    than twofold (ground contact through an ankle guessed behind an occluder, or lifted off the ground;
+    the torso of a person bent over). The extraction passes over clusters nearer than this, the fitter
+    drops points nearer (`points_too_near`)."""
     depths = size_depths(obs, K, cfg, whole_body=True)
-    return bool(depths) and float(np.median(obs.points[:, 2])) < cfg.points_min_depth_ratio * min(depths)
+    if cfg.points_min_depth_ratio <= 0.0 or len(depths) < max(cfg.points_min_depth_cues, 1):
+        return float("nan")
+    return cfg.points_min_depth_ratio * min(depths)
+
+
+def points_too_near(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> bool:
+    """Whether the person's points lie nearer than `nearest_depth`: they belong to an occluder in front
+    (a box at 2 m taken for a person at 8 m whose keypoints show above it)."""
+    return len(obs.points) > 0 and bool(float(np.median(obs.points[:, 2])) < nearest_depth(obs, K, cfg))
 
 
 def pelvis_pixel(obs: PersonObservation, cfg: InitConfig) -> np.ndarray:

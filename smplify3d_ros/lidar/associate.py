@@ -52,9 +52,12 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
     person's mask do not count: in a crowd the neighbours on both sides stand at one's own depth.
 A pair qualifies with a positive score, the isolation it needs (above), no surface through the box, a
 plausible skeleton at the cluster's depth (the largest keypoint distance, scaled by the cluster's median depth, at most
-`max_person_extent_m`: rejects background far behind) and, for a person whose depth is expected (a
-track's prediction), a cluster depth within that expectation's tolerance: a tracked person half hidden
-behind another keeps their own few points rather than the wall seen past their shoulder. A cluster that
+`max_person_extent_m`: rejects background far behind) and a cluster depth within the person's depth
+range when the caller gives one: for a person whose depth is expected (a track's prediction), within that
+expectation's tolerance (a tracked person half hidden behind another keeps their own few points rather
+than the wall seen past their shoulder); for anyone, no nearer than their size in the image allows (an
+object in front of a person mostly hidden behind it, whose points make a body far too small for the
+keypoints). A cluster that
 hides the body is nobody's main cluster: one with `occluder_min_points` mask points, none of them in the
 core of a segment the detector saw with confidence, while other points lie there, no nearer (an object in front
 fills the mask over the joints the detector guessed; where it saw the body, the LiDAR sees the body's own
@@ -229,12 +232,16 @@ def _contradicted_parts(
         before &= can_hide[None, :]
     one_hot = np.eye(own_core.shape[1])[parts]  # (n, parts)
 
-    def outvoted(selection: np.ndarray, part_names: list[str]) -> np.ndarray:
+    def outvoted(selection: np.ndarray, part_names: list[str], ratio: float, least: int) -> np.ndarray:
         counted = np.isin(np.arange(own_core.shape[1]), [PART_INDEX[p] for p in part_names])
         votes = selection.astype(np.float64) @ one_hot
-        return ((votes > config.refute_ratio * own_core) & (votes >= min_votes) & counted).sum(axis=1)
+        return ((votes > ratio * own_core) & (votes >= least) & counted).sum(axis=1)
 
-    return outvoted(behind, config.refuting_parts), outvoted(before, config.hidden_parts)
+    refuted = outvoted(behind, config.refuting_parts, config.refute_ratio, min_votes)
+    if config.thin_refute_ratio > 0:
+        thin = [p for p in PART_INDEX if p not in config.refuting_parts]
+        refuted += outvoted(behind, thin, config.thin_refute_ratio, max(min_votes, config.thin_refute_min_votes))
+    return refuted, outvoted(before, config.hidden_parts, config.refute_ratio, min_votes)
 
 
 def mask_fraction(
@@ -251,9 +258,10 @@ def mask_fraction(
     return np.searchsorted(grid, np.nan_to_num(limit), side="right") / len(grid)
 
 
-def _isolation(fraction_in: np.ndarray, uniform_fraction: np.ndarray) -> np.ndarray:
-    """0 where points fall inside a region as often as on a uniform surface, 1 where all do."""
-    return (fraction_in - uniform_fraction) / np.maximum(1.0 - uniform_fraction, 1e-6)
+def _isolation(fraction_in: np.ndarray, uniform_fraction: np.ndarray, min_room: float = 1e-6) -> np.ndarray:
+    """0 where points fall inside a region as often as on a uniform surface, 1 where all do, if the region
+    leaves `min_room` of the surface outside it (less: in proportion, a region covering all tells nothing)."""
+    return (fraction_in - uniform_fraction) / np.maximum(1.0 - uniform_fraction, min_room)
 
 
 def _part_weights(skeletons: list[Skeleton | None], n_parts: int, config: ExtractionConfig) -> np.ndarray:
@@ -290,7 +298,7 @@ def _surface_through(g: _Geometry, z: np.ndarray, depth: np.ndarray, config: Ext
 def _main_clusters(
     counts: dict[str, np.ndarray], coverage: np.ndarray, contradicted: np.ndarray,
     mask_cover: np.ndarray, box_fraction: np.ndarray, depth: np.ndarray, extent: np.ndarray,
-    surface: np.ndarray, config: ExtractionConfig, expected_depth: np.ndarray | None = None,
+    surface: np.ndarray, config: ExtractionConfig, depth_range: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(P,) main cluster per person (-1: none) and (P, C) bool clusters that may be part of a body.
 
@@ -301,10 +309,10 @@ def _main_clusters(
     fraction of the bbox the mask covers at the cluster's depth; box_fraction: (P,) the bbox's share
     of bbox + context; depth: (P, C) median depth of the mask points; extent: (P,) skeleton size;
     surface: (P, C) a surface at the cluster's depth goes on past the sides of the bbox;
-    expected_depth: optional (P, 2) expected depth and tolerance per person (NaN: none).
+    depth_range: optional (P, 2) nearest and farthest depth of each person's main cluster (NaN: unbounded).
     """
     score, body_like = _qualify(counts, coverage, contradicted, mask_cover, box_fraction, depth, extent,
-                                surface, config, expected_depth)
+                                surface, config, depth_range)
     main, owners = _assign(score, body_like & ~_hides_the_body(counts, config), counts, config)
     body_like[:, owners > 0] = False  # someone's main cluster is nobody's extra
     return main, body_like
@@ -313,20 +321,19 @@ def _main_clusters(
 def _qualify(
     counts: dict[str, np.ndarray], coverage: np.ndarray, contradicted: np.ndarray,
     mask_cover: np.ndarray, box_fraction: np.ndarray, depth: np.ndarray, extent: np.ndarray,
-    surface: np.ndarray, config: ExtractionConfig, expected_depth: np.ndarray | None = None,
+    surface: np.ndarray, config: ExtractionConfig, depth_range: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(P, C) score of each (person, cluster) pair and whether the cluster may be part of that body
     (`_main_clusters` has the arguments)."""
     in_box, in_mask = counts["in_box"], counts["in_mask"]
-    purity = _isolation(in_mask / np.maximum(in_box, 1), mask_cover)
+    purity = _isolation(in_mask / np.maximum(in_box, 1), mask_cover, config.purity_min_room)
     bounded = _isolation(in_box / np.maximum(in_box + counts["in_context"], 1), box_fraction[:, None])
     isolation = np.maximum(purity, bounded)
     score = (coverage - contradicted) * isolation
     with np.errstate(invalid="ignore"):
         plausible = extent[:, None] * depth <= config.max_person_extent_m
-        if expected_depth is not None:
-            expected, tolerance = expected_depth[:, :1], expected_depth[:, 1:]
-            plausible &= ~(np.abs(depth - expected) > tolerance)  # NaN expectation: no constraint
+        if depth_range is not None:  # NaN: no constraint
+            plausible &= ~(depth < depth_range[:, :1]) & ~(depth > depth_range[:, 1:])
         body_like = (in_mask > 0) & plausible & (isolation >= _min_isolation(counts, config)) & ~surface
     return score, body_like
 
@@ -466,14 +473,14 @@ def _geometry(uv: np.ndarray, z: np.ndarray, skeletons: list[Skeleton | None], c
 def associate(
     points: np.ndarray, uv: np.ndarray, coords: np.ndarray, clusters: np.ndarray,
     skeletons: list[Skeleton | None], camera: CameraModel, config: ExtractionConfig,
-    expected_depth: np.ndarray | None = None,
+    depth_range: np.ndarray | None = None,
 ) -> np.ndarray:
     """(M,) int64 person index of each candidate point (-1: nobody).
 
     points: (M, 3) camera-frame candidates (ground removed); uv: (M, 2) their undistorted pixels;
     coords: (M, 3) their clustering-space coordinates (`cluster.scaled_coordinates`); clusters: (M,)
-    cluster labels 0..C-1; skeletons: one per person, None for people without one; expected_depth:
-    optional (P, 2) depth (m) where each person is expected and its tolerance (NaN rows: anywhere).
+    cluster labels 0..C-1; skeletons: one per person, None for people without one; depth_range:
+    optional (P, 2) nearest and farthest depth (m) of each person's main cluster (NaN: unbounded).
     """
     owner = np.full(len(points), -1, dtype=np.int64)
     if len(points) == 0 or len(skeletons) == 0:
@@ -484,7 +491,7 @@ def associate(
     on_a_body = mask.any(axis=0)  # beside a box, that is a neighbour's body, not a surface going on
     g.left &= ~on_a_body
     g.right &= ~on_a_body
-    main, body_like, depth = _score_clusters(g, mask, z, clusters, skeletons, camera, config, expected_depth)
+    main, body_like, depth = _score_clusters(g, mask, z, clusters, skeletons, camera, config, depth_range)
     chosen, reference = _body_clusters(main, body_like, depth, g.box, coords, clusters, config)
     with np.errstate(invalid="ignore"):
         in_window = np.abs(z[None, :] - reference[:, None]) <= config.body_depth_window_m
@@ -498,7 +505,7 @@ def associate(
 
 def _score_clusters(
     g: _Geometry, mask: np.ndarray, z: np.ndarray, clusters: np.ndarray, skeletons: list[Skeleton | None],
-    camera: CameraModel, config: ExtractionConfig, expected_depth: np.ndarray | None = None,
+    camera: CameraModel, config: ExtractionConfig, depth_range: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each person's main cluster (-1: none), which clusters look like a body, and each (person, cluster)
     pair's median depth."""
@@ -554,10 +561,10 @@ def _score_clusters(
               "exclusive": count(exclusive), "core": own_core.sum(axis=2),
               "core_behind": _core_behind(core, z, depth, config)}
     surface = _surface_through(g, z, depth, config)
-    if expected_depth is not None:
-        expected_depth = np.asarray(expected_depth, np.float64).reshape(n_people, 2)
+    if depth_range is not None:
+        depth_range = np.asarray(depth_range, np.float64).reshape(n_people, 2)
     main, body_like = _main_clusters(
-        counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent, surface, config, expected_depth,
+        counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent, surface, config, depth_range,
     )
     missing = np.flatnonzero(main < 0)
     if config.second_look and 0 < len(missing) < n_people:
@@ -574,7 +581,7 @@ def _score_clusters(
         coverage, contradicted = evidence(exclusive, missing, explained, config.second_look_min_votes)
         counts["exclusive"] = count(exclusive)
         score, second = _qualify(counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent,
-                                 surface, config, expected_depth)
+                                 surface, config, depth_range)
         owners = np.bincount(main[placed], minlength=n_clusters)
         main, owners = _assign(score, second & ~_hides_the_body(counts, config), counts, config, main, owners,
                                missing)

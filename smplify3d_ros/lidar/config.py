@@ -48,6 +48,7 @@ class ExtractionConfig:
     min_isolation: float  # how much a body stands out from a surface (0: like a wall, 1: fully)
     core_isolation_points: int  # a cluster with this many core points needs only `core_min_isolation` (0: off)
     core_min_isolation: float  # ...the isolation such a cluster needs (a person merged with what they lean on)
+    purity_min_room: float  # purity is rescaled by no less than this share of the bbox the mask leaves uncovered
     surface_side_width: float  # bands beside the bbox, in bbox widths, where a surface would go on
     surface_ratio: float  # a cluster is a surface if both bands hold this fraction of the bbox's points at its depth
     surface_one_side_ratio: float  # ... or one band this many times them
@@ -59,6 +60,8 @@ class ExtractionConfig:
     refuting_parts: list[str]  # body parts (keypoints.BODY_PARTS) wide enough to refute a cluster
     refute_min_score: float  # only segments whose keypoints score at least this refute a cluster
     refute_ratio: float  # a part refutes a cluster when its core holds this many times more points behind it
+    thin_refute_ratio: float  # ...and a part not among them (a shin, a forearm) when this many times (0: never)
+    thin_refute_min_votes: int  # ...with at least this many points behind the cluster
     # a cluster with this many mask points, none in a confident segment's core, hides the body (0: off)
     occluder_min_points: int
     hidden_parts: list[str]  # body parts (keypoints.BODY_PARTS) that count as hidden by points in front
@@ -115,6 +118,9 @@ class ExtractionConfig:
             require(not unknown, f"{name}: unknown body parts {unknown}; known: {list(PART_NAMES)}")
         require(0.0 <= self.refute_min_score <= 1.0, "refute_min_score must be in [0, 1]")
         require(self.refute_ratio >= 1.0, "refute_ratio must be >= 1")
+        require(self.thin_refute_ratio == 0.0 or self.thin_refute_ratio >= 1.0, "thin_refute_ratio must be 0 or >= 1")
+        require(self.thin_refute_min_votes >= 1, "thin_refute_min_votes must be >= 1")
+        require(0.0 < self.purity_min_room <= 1.0, "purity_min_room must be in (0, 1]")
         require(self.hidden_weight >= 0.0, "hidden_weight must be >= 0")
         require(self.second_look_min_votes >= 1, "second_look_min_votes must be >= 1")
         require(self.occluder_min_points >= 0, "occluder_min_points must be >= 0")

@@ -17,6 +17,7 @@ only for points that no keypoint bbox reaches anyway.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,9 +51,24 @@ class ExtractionResult:
     ground: GroundPlane  # the frame's ground plane (or the fallback height band), camera frame
 
 
+def depth_range(n_people: int, expected_depth: np.ndarray | None, min_depth: np.ndarray | None) -> np.ndarray | None:
+    """(P, 2) nearest and farthest depth of each person's main cluster (NaN: unbounded), from an expected
+    depth and tolerance (P, 2) and a nearest depth (P,), either optional; None when neither is given."""
+    if expected_depth is None and min_depth is None:
+        return None
+    out = np.full((n_people, 2), np.nan)
+    if expected_depth is not None:
+        expected = np.asarray(expected_depth, np.float64).reshape(n_people, 2)
+        out[:, 0], out[:, 1] = expected[:, 0] - expected[:, 1], expected[:, 0] + expected[:, 1]
+    if min_depth is not None:
+        out[:, 0] = np.fmax(out[:, 0], np.asarray(min_depth, np.float64).reshape(n_people))
+    return out
+
+
 def extract_people(
     points_cam: np.ndarray, keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig,
     expected_depth: np.ndarray | None = None,
+    min_depth: Callable[[GroundPlane], np.ndarray] | None = None,
 ) -> ExtractionResult:
     """Each person's points in a full scan.
 
@@ -60,6 +76,8 @@ def extract_people(
     keypoints: (P, 17, 3) COCO-17 undistorted u, v (px) and score, one set per person.
     expected_depth: optional (P, 2) depth (m) where each person is expected and its tolerance (m), e.g.
     a track's prediction; a person's main cluster must lie within it (NaN rows: anywhere).
+    min_depth: optional, given the frame's ground plane (step 3), the (P,) depth (m) nearer than which
+    each person's main cluster cannot lie, e.g. what their size in the image allows (NaN: no bound).
     """
     points = np.asarray(points_cam, dtype=np.float32).reshape(-1, 3)
     keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 17, 3)
@@ -94,7 +112,8 @@ def extract_people(
     # 4. Clusters; 5 and 6. Association, one owner per point.
     coords = scaled_coordinates(points[candidates], ground, config)
     clusters = euclidean_clusters(coords, config)
-    owner = associate(points[candidates], cand_uv, coords, clusters, skeletons, camera, config, expected_depth)
+    owner = associate(points[candidates], cand_uv, coords, clusters, skeletons, camera, config,
+                      depth_range(len(keypoints), expected_depth, None if min_depth is None else min_depth(ground)))
     labels[candidates] = owner.astype(np.int32)
 
     people = []
