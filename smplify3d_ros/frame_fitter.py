@@ -29,7 +29,6 @@ from smplify3d_ros.config import Config, load_config
 from smplify3d_ros.fitting.config import FittingConfig, InitConfig
 from smplify3d_ros.fitting.fitter import FitOptions, Fitter
 from smplify3d_ros.fitting.init import nearest_depth
-from smplify3d_ros.lidar.associate import person_skeleton
 from smplify3d_ros.lidar.config import ExtractionConfig
 from smplify3d_ros.lidar.extract import ExtractionResult, extract_people
 from smplify3d_ros.lidar.ground import GroundPlane
@@ -118,7 +117,7 @@ def extract_frame_people(frame: Frame, config: ExtractionConfig, expected_depth:
     if expected_depth is not None:  # bystanders: expected anywhere
         expected_depth = np.concatenate([np.asarray(expected_depth, np.float64).reshape(n, 2),
                                          np.full((len(bystanders), 2), np.nan)])
-    nearest = None if init is None else partial(_nearest_depths, everyone, pinhole, config, init)
+    nearest = None if init is None else partial(_nearest_depths, everyone, pinhole.K, init)
     result = extract_people(points_cam, everyone, pinhole, config, expected_depth, nearest)
     labels = np.where(result.labels >= n, -1, result.labels).astype(np.int32)
     return undistorted, replace(result, people=result.people[:n], labels=labels)
@@ -130,18 +129,16 @@ def ground_vector(plane: GroundPlane) -> np.ndarray | None:
     return np.array([*plane.normal, plane.offset], dtype=np.float64) if plane.fitted else None
 
 
-def _nearest_depths(keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig, init: InitConfig,
-                    plane: GroundPlane) -> np.ndarray:
-    """(P,) `fitting.init.nearest_depth` of undistorted keypoint sets, each with the extraction's box, on
-    the frame's ground plane when one was fitted (NaN: no bound)."""
+def _nearest_depths(keypoints: np.ndarray, K: np.ndarray, init: InitConfig, plane: GroundPlane,
+                    boxes: np.ndarray) -> np.ndarray:
+    """(P,) `fitting.init.nearest_depth` of undistorted keypoint sets with the extraction's boxes (NaN
+    rows: no skeleton), on the frame's ground plane when one was fitted (NaN: no bound)."""
     ground = ground_vector(plane)
     out = np.full(len(keypoints), np.nan)
-    for k, kp in enumerate(keypoints):
-        skeleton = person_skeleton(kp, camera, config)
-        if skeleton is not None:
-            obs = PersonObservation(person_id=-1, keypoints=kp, bbox=skeleton.bbox, points=np.zeros((0, 3)),
-                                    ground=ground)
-            out[k] = nearest_depth(obs, camera.K, init)
+    for k in np.flatnonzero(np.all(np.isfinite(boxes), axis=1)):
+        obs = PersonObservation(person_id=-1, keypoints=keypoints[k], bbox=boxes[k], points=np.zeros((0, 3)),
+                                ground=ground)
+        out[k] = nearest_depth(obs, K, init)
     return out
 
 

@@ -68,7 +68,7 @@ def depth_range(n_people: int, expected_depth: np.ndarray | None, min_depth: np.
 def extract_people(
     points_cam: np.ndarray, keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig,
     expected_depth: np.ndarray | None = None,
-    min_depth: Callable[[GroundPlane], np.ndarray] | None = None,
+    min_depth: Callable[[GroundPlane, np.ndarray], np.ndarray] | None = None,
 ) -> ExtractionResult:
     """Each person's points in a full scan.
 
@@ -76,8 +76,9 @@ def extract_people(
     keypoints: (P, 17, 3) COCO-17 undistorted u, v (px) and score, one set per person.
     expected_depth: optional (P, 2) depth (m) where each person is expected and its tolerance (m), e.g.
     a track's prediction; a person's main cluster must lie within it (NaN rows: anywhere).
-    min_depth: optional, given the frame's ground plane (step 3), the (P,) depth (m) nearer than which
-    each person's main cluster cannot lie, e.g. what their size in the image allows (NaN: no bound).
+    min_depth: optional, given the frame's ground plane (step 3) and each person's padded keypoint bbox
+    ((P, 4), NaN rows for people without a skeleton), the (P,) depth (m) nearer than which each person's
+    main cluster cannot lie, e.g. what their size in the image allows (NaN: no bound).
     """
     points = np.asarray(points_cam, dtype=np.float32).reshape(-1, 3)
     keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 17, 3)
@@ -112,8 +113,10 @@ def extract_people(
     # 4. Clusters; 5 and 6. Association, one owner per point.
     coords = scaled_coordinates(points[candidates], ground, config)
     clusters = euclidean_clusters(coords, config)
+    boxes = np.array([s.bbox if s is not None else np.full(4, np.nan) for s in skeletons]).reshape(-1, 4)
+    nearest = None if min_depth is None else min_depth(ground, boxes)
     owner = associate(points[candidates], cand_uv, coords, clusters, skeletons, camera, config,
-                      depth_range(len(keypoints), expected_depth, None if min_depth is None else min_depth(ground)))
+                      depth_range(len(keypoints), expected_depth, nearest))
     labels[candidates] = owner.astype(np.int32)
 
     people = []
