@@ -149,7 +149,7 @@ def nearest_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> flo
     the torso of a person bent over). The extraction passes over clusters nearer than this, the fitter
     drops points nearer (`points_too_near`)."""
     depths = size_depths(obs, K, cfg, whole_body=True)
-    if cfg.points_min_depth_ratio <= 0.0 or len(depths) < max(cfg.points_min_depth_cues, 1):
+    if cfg.points_min_depth_ratio <= 0.0 or len(depths) < cfg.points_min_depth_cues:
         return float("nan")
     return cfg.points_min_depth_ratio * min(depths)
 

@@ -24,8 +24,11 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
     occluding box is refuted by the torso and head behind it, and so is a person standing in front
     of k by k's own visible parts. "More" means `refute_ratio` times as many: a child's neck or thigh
     is narrower than the core, and keypoint noise moves the core off a thin part, so that a few points
-    of the wall seen beside it must not outvote the body's own. Only parts wider than the core refute
-    (`refuting_parts`).
+    of the wall seen beside it must not outvote the body's own. Parts wider than the core refute
+    (`refuting_parts`) at that ratio; the thinner ones (shins, forearms), beside which the core shows
+    some background anyway, at `thin_refute_ratio` with at least `thin_refute_min_votes` points: the
+    shin and forearm of a person behind an object that covers their torso and head show the person's
+    own points behind it.
   - hidden parts: under hypothesis j, a torso or head (`hidden_parts`) whose core holds `refute_ratio`
     times more points of clusters nearer than j than of j is hidden by them; yet its keypoints were
     seen. Each weighs `hidden_weight` against j: a patch of wall seen past the shoulder of a person
@@ -37,7 +40,10 @@ body part (`keypoints.BODY_PARTS`) of its nearest segment. The score of "cluster
         from a grid of `mask_area_samples`^2 pixels), or less where a body shadows the wall;
       boundedness: in_box / (in_box + in_context) is 1 for an object inside the bbox, and for a
         wall the bbox's share of bbox + surroundings;
-    each rescaled so that the wall's value is 0 and 1 stays 1; a pair needs `min_isolation`, or
+    each rescaled so that the wall's value is 0 and 1 stays 1 (purity by no less than
+    `purity_min_room`: where the mask covers nearly all of the bbox, as a far person's skeleton does at
+    a near object's depth, purity says nothing, and rescaled by the little left it would read as fully
+    isolated); a pair needs `min_isolation`, or
     `core_min_isolation` when the cluster has `core_isolation_points` in the core (a person merged with
     the post they lean on stands out only partly, but fills the core). Boundedness rescues a person merged
     with a prop (a seat, a carried box) whose points leave the mask; purity, a person next to a
@@ -212,8 +218,9 @@ def _contradicted_parts(
     A body hides what is behind it, so the skeleton's core (points within `core_radius_m`) shows the
     body itself or an occluder in front of it, never the background. A part refutes hypothesis j when
     its core holds `refute_ratio` times more points of other clusters farther than j (by
-    `depth_tolerance_m`) than of j. Only `refuting_parts` refute: those wider than the core (torso, head,
-    thighs), since beside a thin forearm the core already shows what is behind it; and only segments
+    `depth_tolerance_m`) than of j, if it is one of the `refuting_parts`, those wider than the core
+    (torso, head, thighs); the others, beside which the core already shows some of what is behind,
+    refute at `thin_refute_ratio` (0: never) with `thin_refute_min_votes`. Only segments
     whose keypoints score at least `refute_min_score`, since a guessed joint puts the core beside the
     body. One of the `hidden_parts` (torso, head) is hidden under hypothesis j when its core holds that
     many times more points of clusters nearer than j: j can still be the person (someone half behind
