@@ -35,6 +35,8 @@ from smplify3d_ros.keypoints import COCO17_NAMES
 
 DEFAULT_PROFILE = "jackal_vlp16"  # the node's own default params_file
 FIRST_BODIES_MAX_S = 30.0  # s, longest wait past the settle for the first ~/bodies (a machine loaded by other work)
+PLAYER_MATCH_MAX_S = 30.0  # s, longest wait of the player process for the node's subscriptions
+PLAYER_MATCH_SETTLE_S = 1.0  # s, then the wait for the subscriptions' side of the match
 INPUT_TYPES = {
     "image": "sensor_msgs/msg/Image",
     "compressed_image": "sensor_msgs/msg/CompressedImage",
@@ -171,8 +173,11 @@ def play_main(argv: list[str]) -> int:
     try:
         node = rclpy.create_node("smplify3d_bench_live_player")
         player = _Player(topics, node)
-        player.wait_for_subscribers(10.0)
-        time.sleep(0.2)  # the subscriptions' side of the match
+        if not player.wait_for_subscribers(PLAYER_MATCH_MAX_S):
+            raise RuntimeError(f"no subscriber matched the player's topics within {PLAYER_MATCH_MAX_S:.0f} s")
+        # the subscriptions' side of the match: messages published before it are lost (two test workers
+        # on two cores once took longer than 0.2 s, and a whole 6-frame bag went unheard)
+        time.sleep(PLAYER_MATCH_SETTLE_S)
         frames, duration, offset = player.play(bag, speed, threading.Event())
         print(json.dumps({"frames": frames, "duration_s": duration, "offset_ns": offset}), flush=True)
         node.destroy_node()
