@@ -36,7 +36,7 @@ from smplify3d_ros.keypoints import COCO17_NAMES
 DEFAULT_PROFILE = "jackal_vlp16"  # the node's own default params_file
 FIRST_BODIES_MAX_S = 30.0  # s, longest wait past the settle for the first ~/bodies (a machine loaded by other work)
 PLAYER_MATCH_MAX_S = 30.0  # s, longest wait of the player process for the node's subscriptions
-PLAYER_MATCH_SETTLE_S = 1.0  # s, then the wait for the subscriptions' side of the match
+PLAYER_MATCH_SETTLE_S = 2.0  # s, then the wait for the subscriptions' side of the match
 INPUT_TYPES = {
     "image": "sensor_msgs/msg/Image",
     "compressed_image": "sensor_msgs/msg/CompressedImage",
@@ -135,6 +135,15 @@ class _Player:
                 last_wall = time.monotonic()
         return frames, (last_wall - first_wall) if first_wall is not None and last_wall else 0.0, offset
 
+    def wait_for_delivery(self, timeout_s: float) -> bool:
+        """Whether the reliable subscribers acknowledged every message within `timeout_s` (a process that
+        exits first takes its unacknowledged messages with it)."""
+        from rclpy.duration import Duration
+
+        deadline = time.monotonic() + timeout_s
+        return all(p.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 0.0)))
+                   for p in self.publishers.values())
+
     def wait_for_subscribers(self, timeout_s: float) -> bool:
         """Whether every publisher was matched by a subscriber within `timeout_s` (discovery)."""
         return _wait_for(lambda: all(p.get_subscription_count() > 0 for p in self.publishers.values()), timeout_s)
@@ -176,9 +185,10 @@ def play_main(argv: list[str]) -> int:
         if not player.wait_for_subscribers(PLAYER_MATCH_MAX_S):
             raise RuntimeError(f"no subscriber matched the player's topics within {PLAYER_MATCH_MAX_S:.0f} s")
         # the subscriptions' side of the match: messages published before it are lost (two test workers
-        # on two cores once took longer than 0.2 s, and a whole 6-frame bag went unheard)
+        # on two cores once took longer than 0.2 s and than 1 s, and a whole 6-frame bag went unheard)
         time.sleep(PLAYER_MATCH_SETTLE_S)
         frames, duration, offset = player.play(bag, speed, threading.Event())
+        player.wait_for_delivery(PLAYER_MATCH_MAX_S)  # a reliable subscriber's last messages before we exit
         print(json.dumps({"frames": frames, "duration_s": duration, "offset_ns": offset}), flush=True)
         node.destroy_node()
     except KeyboardInterrupt:
