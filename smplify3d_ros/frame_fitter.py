@@ -29,6 +29,7 @@ from smplify3d_ros.config import Config, load_config
 from smplify3d_ros.fitting.config import FittingConfig, InitConfig
 from smplify3d_ros.fitting.fitter import FitOptions, Fitter
 from smplify3d_ros.fitting.init import nearest_depth
+from smplify3d_ros.keypoints import KP
 from smplify3d_ros.lidar.config import ExtractionConfig
 from smplify3d_ros.lidar.extract import ExtractionResult, extract_people
 from smplify3d_ros.lidar.ground import GroundPlane
@@ -447,7 +448,35 @@ class FrameFitter:
         height = max(float(obs.bbox[3] - obs.bbox[1]), float(np.ptp(rows)) if rows.size else 0.0, 1.0)
         off = fit.quality.points_to_mesh_m
         return (FLAG_DIVERGED in fit.flags or not fit.quality.reprojection_px <= cfg.lost_reprojection * height
-                or (np.isfinite(off) and off > cfg.lost_points_to_mesh_m))
+                or (np.isfinite(off) and off > cfg.lost_points_to_mesh_m) or self._faces_away(fit, obs, K))
+
+    def _faces_away(self, fit: BodyFit, obs: PersonObservation, K: np.ndarray) -> bool:
+        """The fit faces the other way from the detected face (`tracking.lost_face_offset_m`): across the
+        image, the detected nose lies on one side of the ears and the fit's torso faces the other, both by
+        more than the limit (metres at the nose's depth; the fit's side is where its nose would lie were
+        its head turned as its torso). It catches what the reprojection cannot: a person seen side-on who
+        turned round between two fits (a stop and a turn on the spot 0.3 s apart, as when the node fits
+        every third frame) stays fitted facing where they faced before, and the mirror image of a side
+        view projects almost alike but for the face, which the warm solve then turns alone. A person
+        facing the camera or turned away has their nose between their ears in the image and a torso
+        facing along the ray, so a detector's confident nose on someone seen from behind does not set it
+        off."""
+        limit = self.config.tracking.lost_face_offset_m
+        kp = np.asarray(obs.keypoints, np.float64)
+        conf = self.config.fitting.visibility.keypoint_conf_image
+        nose = KP["nose"]
+        ears = [KP[n] for n in ("left_ear", "right_ear") if kp[KP[n], 2] >= conf]
+        X = np.asarray(fit.keypoints3d, np.float64)
+        if limit <= 0 or kp[nose, 2] < conf or not ears or X[nose, 2] <= 0.1:
+            return False
+        seen = (kp[nose, 0] - kp[ears, 0].mean()) * X[nose, 2] / K[0, 0]
+        shoulders, hips = X[[KP["left_shoulder"], KP["right_shoulder"]]], X[[KP["left_hip"], KP["right_hip"]]]
+        forward = np.cross(shoulders[0] + hips[0] - shoulders[1] - hips[1], shoulders.mean(0) - hips.mean(0))
+        forward /= max(float(np.linalg.norm(forward)), 1e-9)
+        pelvis = hips.mean(0)
+        across = forward[0] - pelvis[0] / max(pelvis[2], 1e-3) * forward[2]  # image-x component at the pelvis
+        fitted = across * float(np.linalg.norm(X[nose] - X[ears].mean(0)))
+        return bool(seen * fitted < 0 and min(abs(seen), abs(fitted)) > limit)
 
     def fit(self, frame: Frame, options: FitOptions | None = None) -> FrameFits:
         """The whole path of one frame (module docstring)."""

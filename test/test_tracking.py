@@ -335,6 +335,60 @@ def test_a_sparse_persons_warm_fit_is_not_lost_by_mesh_without_points_near_it():
     assert lost(chamfer=0.2, off=0.10)
 
 
+def _body_facing(forward: np.ndarray, z: float = 5.0) -> np.ndarray:
+    """(17, 3) COCO keypoints of a person at depth z facing `forward` (horizontal, camera frame: y down)."""
+    from smplify3d_ros.keypoints import KP
+
+    up = np.array([0.0, -1.0, 0.0])
+    left = np.cross(up, forward)  # a person facing the camera (forward -z) has their left on the image's right
+    kp = np.zeros((17, 3))
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        kp[KP[f"{side}_shoulder"]] = 0.2 * sign * left + 0.5 * up
+        kp[KP[f"{side}_hip"]] = 0.12 * sign * left
+        kp[KP[f"{side}_ear"]] = 0.07 * sign * left + 0.65 * up
+        kp[KP[f"{side}_eye"]] = 0.03 * sign * left + 0.1 * forward + 0.68 * up
+    kp[KP["nose"]] = 0.11 * forward + 0.66 * up
+    return kp + np.array([0.0, 0.0, z])
+
+
+def test_a_warm_fit_facing_away_from_the_detected_face_is_lost():
+    """Seen side-on, a body and its mirror image (turned round) project almost alike but for the face: a
+    warm fit whose torso faces one way across the image while the detected nose lies on the other side of
+    the ears is lost. Seen from the front or the back (a detector's confident nose on someone turned
+    away), the nose between the ears decides nothing; an unsure nose decides nothing either."""
+    from node_support import StubFitter
+
+    from smplify3d_ros.frame_fitter import FrameFitter
+    from smplify3d_ros.keypoints import KP
+
+    core = load_config()
+    path = FrameFitter(core, fitter=StubFitter(), tracker=Tracker(core.tracking), warm_fitter=StubFitter())
+    K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+
+    def detected(body: np.ndarray, nose_conf: float = 0.9) -> PersonObservation:
+        uv = body[:, :2] / body[:, 2:] * 500.0 + [320.0, 240.0]
+        kp = np.column_stack([uv, np.full(17, 0.9)])
+        kp[KP["nose"], 2] = nose_conf
+        return dataclasses.replace(observation(2, 0.0), keypoints=kp)
+
+    def lost(fitted: np.ndarray, seen: PersonObservation) -> bool:
+        fit = dataclasses.replace(fit_at(2, 0.0), keypoints3d=fitted.astype(np.float32))
+        return path._lost(dataclasses.replace(fit, quality=dataclasses.replace(fit.quality, reprojection_px=1.0)),
+                          seen, K)
+
+    right, left, away = np.array([1.0, 0, 0]), np.array([-1.0, 0, 0]), np.array([0, 0, 1.0])
+    assert not lost(_body_facing(right), detected(_body_facing(right)))
+    assert lost(_body_facing(right), detected(_body_facing(left)))
+    assert lost(_body_facing(left), detected(_body_facing(right)))
+    assert not lost(_body_facing(right), detected(_body_facing(left), nose_conf=0.2))
+    hallucinated = detected(_body_facing(away))
+    hallucinated.keypoints[KP["nose"], 0] -= 8.0  # 8 px left of the ears, confidently
+    assert not lost(_body_facing(away), hallucinated)
+    core_off = load_config(overrides={"tracking": {"lost_face_offset_m": 0.0}})
+    path = FrameFitter(core_off, fitter=StubFitter(), tracker=Tracker(core_off.tracking), warm_fitter=StubFitter())
+    assert not lost(_body_facing(right), detected(_body_facing(left)))
+
+
 def test_a_refresh_fits_cold_only_when_a_builtin_hypothesis_beats_the_warm_start():
     """With `refresh_compete_first` (off by default), a refresh first pits the warm start against the built-in heading
     hypotheses; where the warm start wins, the cold fit (which would go on from it) is not run."""
