@@ -162,6 +162,7 @@ class FrameFitter:
         self._background_failed = False  # after a failure, refreshes are fitted inline
         self._pending: dict[int, _PendingRefresh] = {}  # person id -> refresh running in the background
         self._jobs: dict[int, list[BodyFit]] = {}  # background job -> its fits, while some are not taken
+        self._second_starts: dict[int, BodyFit] = {}  # person id -> a refresh's cold fit: a second warm start
 
     # -- background refreshes ------------------------------------------------------------------------
     @property
@@ -185,7 +186,7 @@ class FrameFitter:
         """End the helper process, if any (pending refreshes are forgotten)."""
         if self._background is not None:
             self._background.close()
-        self._background, self._pending, self._jobs = None, {}, {}
+        self._background, self._pending, self._jobs, self._second_starts = None, {}, {}, {}
 
     def select_people(self, frame: Frame) -> tuple[Frame, Counter]:
         """Usable people only: far out-of-image keypoints become missing, people with too few keypoints
@@ -281,17 +282,26 @@ class FrameFitter:
         warm_start = {i: tracker.warm_start(p.person_id, stamp) for i, p in enumerate(people)
                       if p.init is None and not self._regained(p)}
         warm = [i for i, start in warm_start.items() if start is not None]
+        second = {i: tracker.warm_start(people[i].person_id, stamp, self._second_starts[people[i].person_id])
+                  for i in warm if people[i].person_id in self._second_starts}
+        self._second_starts = {}
         warm_fits: dict[int, BodyFit] = {}
         lost_fits: dict[int, BodyFit] = {}
+        second_won = 0
         if warm:
-            warm_people = [replace(people[i], init=warm_start[i].params, init_vertices=warm_start[i].vertices,
-                                   predicted_pelvis=warm_start[i].pelvis,
-                                   predicted_keypoints=warm_start[i].keypoints) for i in warm]
+            rows = [(i, warm_start[i]) for i in warm] + [(i, start) for i, start in second.items()]
+            warm_people = [replace(people[i], init=start.params, init_vertices=start.vertices,
+                                   predicted_pelvis=start.pelvis, predicted_keypoints=start.keypoints)
+                           for i, start in rows]
             warm_options = replace(options or FitOptions(), use_icp=self.config.tracking.warm_icp)
             t = time.perf_counter()
             warm_results = self.warm_fitter.fit(warm_people, K, observed.lidar_origin, warm_options)
-            latency["warm_fit_per_person"] = (time.perf_counter() - t) / len(warm_people)
-            for i, fit in zip(warm, warm_results, strict=True):
+            latency["warm_fit_per_person"] = (time.perf_counter() - t) / len(warm)
+            chosen = dict(zip(warm, warm_results[:len(warm)], strict=True))
+            for (i, _), fit in zip(rows[len(warm):], warm_results[len(warm):], strict=True):
+                if fit.quality.final_loss < chosen[i].quality.final_loss:  # same profile, same data: comparable
+                    chosen[i], second_won = fit, second_won + 1
+            for i, fit in chosen.items():
                 fit = replace(fit, flags=(fit.flags - {FLAG_EXTERNAL_INIT}) | {FLAG_WARM_START})
                 (lost_fits if self._lost(fit, people[i], K) else warm_fits)[i] = fit
         refresh = self._refreshes_due([i for i in warm_fits if people[i].person_id not in self._pending], people)
@@ -322,6 +332,7 @@ class FrameFitter:
         refreshed = sum(fits[i] is not warm_fits[i] for i in refresh)
         lost = len(lost_fits)
         tracker.stats.fits.update({"warm": len(warm_fits) - refreshed, "lost": lost, "refresh": len(refresh),
+                                   "refresh_second_starts": len(second), "refreshed_second_start": second_won,
                                    "refresh_settled": len(settled), "refreshed": refreshed,
                                    "refresh_background": len(refresh) - len(settled) - len(inline),
                                    "lost_background": len(deferred),
@@ -382,8 +393,11 @@ class FrameFitter:
                 track.last_fit = cold
                 self.tracker.stats.fits["lost_refitted"] += 1
             elif not pending.lost and self._better(cold, pending.warm):
-                track.last_fit = cold
-                self.tracker.stats.fits["refreshed"] += 1
+                if cfg.refresh_second_start:
+                    self._second_starts[pid] = cold
+                else:
+                    track.last_fit = cold
+                    self.tracker.stats.fits["refreshed"] += 1
         waiting = {p.job for p in self._pending.values()}
         self._jobs = {job: fits for job, fits in self._jobs.items() if job in waiting}
 

@@ -64,9 +64,11 @@ def _run(path: FrameFitter, frames: int) -> None:
 
 
 def test_a_background_refresh_is_taken_frames_later_and_starts_the_next_warm_solve():
+    """Without `refresh_second_start`: the better cold fit becomes the track's last fit."""
     cold, warm = StubFitter(), StubFitter()
     background = InProcessBackground(BetterColdFits())
-    core = load_config(overrides={"tracking": {"refresh_frames": 3, "refresh_apply_frames": 2}})
+    core = load_config(overrides={"tracking": {"refresh_frames": 3, "refresh_apply_frames": 2,
+                                               "refresh_second_start": False}})
     path = FrameFitter(core, fitter=cold, tracker=Tracker(core.tracking), warm_fitter=warm, background=background)
     _run(path, 8)
     # frame 0: new track, cold inline; frame 3: refresh sent to the background, the frame output warm;
@@ -80,6 +82,39 @@ def test_a_background_refresh_is_taken_frames_later_and_starts_the_next_warm_sol
     fits = path.tracker.stats.fits
     assert fits["refresh"] == 2 and fits["refresh_background"] == 2 and fits["refreshed"] == 1
     assert fits["warm"] == 7 and fits["cold"] == 1
+
+
+class LossByPose(StubFitter):
+    """Warm fits whose final loss follows their start's mean pose angle: `sign` +1, the 0.3 rad start of a
+    `BetterColdFits` refresh has the higher loss; -1, the lower."""
+
+    def __init__(self, sign: float) -> None:
+        super().__init__()
+        self.sign = sign
+
+    def fit(self, people, K, origin, options=None):
+        fits = super().fit(people, K, origin, options)
+        return [dataclasses.replace(f, quality=dataclasses.replace(
+            f.quality, final_loss=1.0 + self.sign * float(p.init.pose.mean()))) for f, p in zip(fits, people)]
+
+
+@pytest.mark.parametrize("sign", [-1.0, 1.0])
+def test_a_background_refresh_is_a_second_warm_start_kept_by_its_loss(sign):
+    """A refresh's cold fit is 2 fitted frames old when it is taken; with `refresh_second_start` (the
+    default) it is not the track's last fit but a second start of that frame's warm solve, beside the
+    usual one, and the lower final loss of the two is kept (the same profile on the same data)."""
+    cold, warm = StubFitter(), LossByPose(sign)
+    background = InProcessBackground(BetterColdFits())
+    core = load_config(overrides={"tracking": {"refresh_frames": 3, "refresh_apply_frames": 2}})
+    path = FrameFitter(core, fitter=cold, tracker=Tracker(core.tracking), warm_fitter=warm, background=background)
+    _run(path, 8)
+    starts = [[float(p.init.pose.mean()) for p in call] for call in warm.calls]  # frames 1-7
+    assert starts[:5] == [[0.0]] * 5 and starts[5] == [0.0, 0.3], starts
+    won = sign < 0
+    assert starts[6] == ([0.3] if won else [0.0]), starts
+    fits = path.tracker.stats.fits
+    assert fits["refresh_second_starts"] == 1 and fits["refreshed_second_start"] == int(won)
+    assert fits["refreshed"] == 0 and fits["warm"] == 7 and fits["cold"] == 1
 
 
 def test_a_background_refresh_no_better_than_its_warm_fit_is_not_taken():

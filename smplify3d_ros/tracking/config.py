@@ -34,6 +34,7 @@ class TrackingConfig:
     refresh_compete_first: bool  # a refresh fits cold only when a built-in hypothesis beats the warm start first
     refresh_background: bool  # a refresh's cold fit runs in a helper process; its frame is output warm
     refresh_apply_frames: int  # ... and is taken this many fitted frames of its track later (waited for)
+    refresh_second_start: bool  # ... as a second start of that frame's warm solve (the lower loss wins)
     refresh_timeout_s: float  # longest wait for a background refresh (its process starting included)
     refresh_nice: int  # scheduling niceness of the helper process (0-19: higher yields the CPU sooner)
     lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of the person's image height) is lost

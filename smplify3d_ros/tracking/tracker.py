@@ -167,15 +167,15 @@ class Tracker:
     def track(self, person_id: int) -> Track | None:
         return self.tracks.get(person_id)
 
-    def warm_start(self, person_id: int, stamp_ns: int) -> WarmStart | None:
-        """The track's last fit moved (translated) to the predicted pelvis at `stamp_ns`, with the track's
-        shape, and its mesh moved with it: the warm solve's ICP needs no forward pass of its own. The held
-        shape may differ from the last fit's by one step of the shape averaging, millimetres of surface,
-        which the rigid alignment does not notice."""
+    def warm_start(self, person_id: int, stamp_ns: int, fit: BodyFit | None = None) -> WarmStart | None:
+        """The track's last fit (or `fit`, another of its fits) moved (translated) to the predicted pelvis
+        at `stamp_ns`, with the track's shape, and its mesh moved with it: the warm solve's ICP needs no
+        forward pass of its own. The held shape may differ from the last fit's by one step of the shape
+        averaging, millimetres of surface, which the rigid alignment does not notice."""
         track = self.tracks.get(person_id)
         if track is None or track.last_fit is None or not self.config.warm_start:
             return None
-        fit = track.last_fit
+        fit = track.last_fit if fit is None else fit
         target = track.motion.predicted(track.age_s(stamp_ns))
         shift = target - pelvis(fit)
         root, transl, _ = move_body(fit.params.root_orient, fit.params.transl, fit.center, transform(t=shift))
@@ -183,7 +183,9 @@ class Tracker:
         params = fit.params.copy()
         params.root_orient, params.transl, params.shape = root, transl, shape.copy()
         vertices = None if fit.vertices is None else (fit.vertices + shift).astype(np.float32)
-        return WarmStart(params, target.copy(), vertices, self.predicted_joints(track, stamp_ns, shift))
+        joints = self.predicted_joints(track, stamp_ns, shift) if fit is track.last_fit else \
+            np.asarray(fit.keypoints3d, np.float64) + shift
+        return WarmStart(params, target.copy(), vertices, joints)
 
     def predicted_joints(self, track: Track, stamp_ns: int, shift: np.ndarray) -> np.ndarray:
         """(17, 3) where the track's last fit's keypoint joints are predicted at `stamp_ns`
