@@ -365,8 +365,10 @@ class FrameFitter:
         """The background refreshes due in this frame: those `tracking.refresh_apply_frames` fitted frames
         of their track past the frame they started on (waiting for them if need be, so that the node and
         the replay take each at the same frame). A cold fit clearly better than its frame's warm fit
-        (`_better`) becomes the track's last fit, the start of this frame's warm solve; a track that was
-        refitted cold since, or ended, does not take it. A lost fit's cold refit is due after
+        (`_better`) becomes a second start of this frame's warm solve, beside the track's last fit, the
+        lower final loss kept (`tracking.refresh_second_start`: it is that many frames old; false: it
+        becomes the track's last fit, the only start); a track that was refitted cold since, or ended,
+        does not take it. A lost fit's cold refit is due after
         `tracking.lost_apply_frames` and is taken while the track's last fit is still lost, or clearly
         worse than it."""
         cfg = self.config.tracking
