@@ -162,7 +162,6 @@ class FrameFitter:
         self._background_failed = False  # after a failure, refreshes are fitted inline
         self._pending: dict[int, _PendingRefresh] = {}  # person id -> refresh running in the background
         self._jobs: dict[int, list[BodyFit]] = {}  # background job -> its fits, while some are not taken
-        self._second_starts: dict[int, BodyFit] = {}  # person id -> a refresh's cold fit: a second warm start
 
     # -- background refreshes ------------------------------------------------------------------------
     @property
@@ -186,7 +185,7 @@ class FrameFitter:
         """End the helper process, if any (pending refreshes are forgotten)."""
         if self._background is not None:
             self._background.close()
-        self._background, self._pending, self._jobs, self._second_starts = None, {}, {}, {}
+        self._background, self._pending, self._jobs = None, {}, {}
 
     def select_people(self, frame: Frame) -> tuple[Frame, Counter]:
         """Usable people only: far out-of-image keypoints become missing, people with too few keypoints
@@ -278,13 +277,12 @@ class FrameFitter:
         result (velocity onto each fit)."""
         tracker, stamp, K = self.tracker, observed.frame.stamp_ns, observed.frame.camera.K
         people = observed.observations
-        self._take_background_refreshes(people)
+        second_starts = self._take_background_refreshes(people)
         warm_start = {i: tracker.warm_start(p.person_id, stamp) for i, p in enumerate(people)
                       if p.init is None and not self._regained(p)}
         warm = [i for i, start in warm_start.items() if start is not None]
-        second = {i: tracker.warm_start(people[i].person_id, stamp, self._second_starts[people[i].person_id])
-                  for i in warm if people[i].person_id in self._second_starts}
-        self._second_starts = {}
+        second = {i: tracker.warm_start(people[i].person_id, stamp, second_starts[people[i].person_id])
+                  for i in warm if people[i].person_id in second_starts}
         warm_fits: dict[int, BodyFit] = {}
         lost_fits: dict[int, BodyFit] = {}
         second_won = 0
@@ -361,7 +359,7 @@ class FrameFitter:
             self._pending[people[i].person_id] = _PendingRefresh(job, k, track, track.frames, warm_fits[i], lost)
         return set(refresh)
 
-    def _take_background_refreshes(self, people: list[PersonObservation]) -> None:
+    def _take_background_refreshes(self, people: list[PersonObservation]) -> dict[int, BodyFit]:
         """The background refreshes due in this frame: those `tracking.refresh_apply_frames` fitted frames
         of their track past the frame they started on (waiting for them if need be, so that the node and
         the replay take each at the same frame). A cold fit clearly better than its frame's warm fit
@@ -370,8 +368,9 @@ class FrameFitter:
         becomes the track's last fit, the only start); a track that was refitted cold since, or ended,
         does not take it. A lost fit's cold refit is due after
         `tracking.lost_apply_frames` and is taken while the track's last fit is still lost, or clearly
-        worse than it."""
+        worse than it. Returns the second starts: person id -> cold fit."""
         cfg = self.config.tracking
+        second_starts: dict[int, BodyFit] = {}
         for pid in [p.person_id for p in people if p.person_id in self._pending]:
             pending = self._pending[pid]
             track = self.tracker.track(pid)
@@ -387,7 +386,7 @@ class FrameFitter:
                 self._background_failed = True
                 self.tracker.stats.fits["refresh_failed"] += 1
                 self.close()
-                return
+                return {}
             last = track.last_fit if track is pending.track else None
             if last is None or FLAG_WARM_START not in last.flags:
                 continue
@@ -396,12 +395,13 @@ class FrameFitter:
                 self.tracker.stats.fits["lost_refitted"] += 1
             elif not pending.lost and self._better(cold, pending.warm):
                 if cfg.refresh_second_start:
-                    self._second_starts[pid] = cold
+                    second_starts[pid] = cold
                 else:
                     track.last_fit = cold
                     self.tracker.stats.fits["refreshed"] += 1
         waiting = {p.job for p in self._pending.values()}
         self._jobs = {job: fits for job, fits in self._jobs.items() if job in waiting}
+        return second_starts
 
     @staticmethod
     def _cold_start(person: PersonObservation, warm_start: WarmStart | None, refresh: bool) -> PersonObservation:
