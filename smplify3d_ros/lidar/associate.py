@@ -131,6 +131,7 @@ class Skeleton:
     bbox: np.ndarray  # (4,) float64 padded keypoint bbox x_min, y_min, x_max, y_max, px, undistorted
     context: np.ndarray  # (4,) float64 the bbox grown by `context_pad`: its surroundings, same layout
     extent: float  # largest distance between two confident keypoints, normalized image units
+    score_scale: float = 1.0  # the frame's detector confidence against `score_level` (<= 1, `score_scale`)
 
 
 def to_normalized(uv: np.ndarray, camera: CameraModel) -> np.ndarray:
@@ -139,8 +140,10 @@ def to_normalized(uv: np.ndarray, camera: CameraModel) -> np.ndarray:
     return (np.asarray(uv, dtype=np.float64) - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
 
 
-def person_skeleton(keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig) -> Skeleton | None:
-    """The skeleton of one (17, 3) keypoint set (undistorted px + score), None if too few are confident."""
+def person_skeleton(keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig,
+                    scale: float = 1.0) -> Skeleton | None:
+    """The skeleton of one (17, 3) keypoint set (undistorted px + score), None if too few are confident;
+    `scale`: the frame's `score_scale`."""
     finite = np.all(np.isfinite(keypoints), axis=1)
     confident = finite & (np.where(finite, keypoints[:, 2], 0.0) >= config.keypoint_min_score)
     if confident.sum() < config.min_keypoints:
@@ -166,7 +169,23 @@ def person_skeleton(keypoints: np.ndarray, camera: CameraModel, config: Extracti
     scores = np.concatenate([np.minimum(score[pairs[linked, 0]], score[pairs[linked, 1]]), score[lone]])
     conf_xy = xy[confident]
     extent = float(np.max(np.linalg.norm(conf_xy[:, None] - conf_xy[None], axis=2)))
-    return Skeleton(starts, ends, parts, scores, bbox, context, extent)
+    return Skeleton(starts, ends, parts, scores, bbox, context, extent, scale)
+
+
+def score_scale(scores: np.ndarray, config: ExtractionConfig) -> float:
+    """How confident the frame's detector is, against one scoring a plainly seen joint `score_level`: the
+    upper quartile of every keypoint score of the frame (`scores`, any shape; NaN ignored) over
+    `score_level`, at most 1. `refute_min_score` scales by it, so that a detector scoring seen joints
+    about 0.65 is read as one scoring them 0.9 is; a more confident one changes nothing. A property of
+    the detector, read from everyone in the frame: a person mostly hidden scores most joints low, and
+    read alone would let guessed joints refute. (Per person, and scaling `coverage_full_score` too, were
+    measured and not taken.)"""
+    scores = np.asarray(scores, np.float64).ravel()
+    scores = scores[np.isfinite(scores)]
+    if config.score_level <= 0 or len(scores) == 0:
+        return 1.0
+    return float(min(1.0, np.quantile(scores, 0.75) / config.score_level))
+
 
 
 def segment_distance(xy: np.ndarray, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
@@ -221,10 +240,11 @@ def _contradicted_parts(
     `depth_tolerance_m`) than of j, if it is one of the `refuting_parts`, those wider than the core
     (torso, head, thighs); the others, beside which the core already shows some of what is behind,
     refute at `thin_refute_ratio` (0: never) with `thin_refute_min_votes`. Only segments
-    whose keypoints score at least `refute_min_score`, since a guessed joint puts the core beside the
-    body. One of the `hidden_parts` (torso, head) is hidden under hypothesis j when its core holds that
-    many times more points of clusters nearer than j: j can still be the person (someone half behind
-    another), but those keypoints were seen with confidence, so each weighs `hidden_weight` against j.
+    whose keypoints score at least `refute_min_score` (times the person's `score_scale`: a less
+    confident detector), since a guessed joint puts the core beside the body. One of the
+    `hidden_parts` (torso, head) is hidden under hypothesis j when its core holds that many times more
+    points of clusters nearer than j: j can still be the person (someone half behind another), but
+    those keypoints were seen with confidence, so each weighs `hidden_weight` against j.
     Legs are not counted: a detector reports legs behind a box with confidence (hallucinated).
     z, clusters, parts: depth, cluster and body part of the person's core points; own_core: (H, parts)
     core points of each hypothesis cluster per part; can_hide: optional (n,) bool, the core points that
@@ -472,7 +492,7 @@ def _geometry(uv: np.ndarray, z: np.ndarray, skeletons: list[Skeleton | None], c
         d, nearest = segment_distance(xy[box], skeleton)
         g.dist[k, box] = d * z[box]
         g.part[k, box] = skeleton.parts[nearest]
-        g.sure[k, box] = skeleton.scores[nearest] >= config.refute_min_score
+        g.sure[k, box] = skeleton.scores[nearest] >= config.refute_min_score * skeleton.score_scale
         g.extent[k] = skeleton.extent
     return g
 

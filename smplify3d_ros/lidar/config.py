@@ -59,6 +59,7 @@ class ExtractionConfig:
     core_radius_m: float  # points this close to a skeleton are its body or an occluder, not background
     refuting_parts: list[str]  # body parts (keypoints.BODY_PARTS) wide enough to refute a cluster
     refute_min_score: float  # only segments whose keypoints score at least this refute a cluster
+    score_level: float  # a plainly seen joint's score; less confident people scale refute_min_score down (0: never)
     refute_ratio: float  # a part refutes a cluster when its core holds this many times more points behind it
     thin_refute_ratio: float  # ...and a part not among them (a shin, a forearm) when this many times (0: never)
     thin_refute_min_votes: int  # ...with at least this many points behind the cluster
@@ -117,6 +118,7 @@ class ExtractionConfig:
             unknown = sorted(set(getattr(self, name)) - set(PART_NAMES))
             require(not unknown, f"{name}: unknown body parts {unknown}; known: {list(PART_NAMES)}")
         require(0.0 <= self.refute_min_score <= 1.0, "refute_min_score must be in [0, 1]")
+        require(0.0 <= self.score_level <= 1.0, "score_level must be in [0, 1]")
         require(self.refute_ratio >= 1.0, "refute_ratio must be >= 1")
         require(self.thin_refute_ratio == 0.0 or self.thin_refute_ratio >= 1.0, "thin_refute_ratio must be 0 or >= 1")
         require(self.thin_refute_min_votes >= 1, "thin_refute_min_votes must be >= 1")

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from smplify3d_ros.camera import in_image, project_points
-from smplify3d_ros.lidar.associate import associate, in_bbox, person_skeleton
+from smplify3d_ros.lidar.associate import associate, in_bbox, person_skeleton, score_scale
 from smplify3d_ros.lidar.cluster import euclidean_clusters, scaled_coordinates
 from smplify3d_ros.lidar.config import ExtractionConfig
 from smplify3d_ros.lidar.ground import GroundPlane, fit_ground
@@ -96,7 +96,8 @@ def extract_people(
     visible, uv = visible[inside], uv[inside]
 
     # 2. Skeletons and their frusta.
-    skeletons = [person_skeleton(kp, camera, config) for kp in keypoints]
+    scale = score_scale(keypoints[..., 2], config)  # the detector's confidence level
+    skeletons = [person_skeleton(kp, camera, config, scale) for kp in keypoints]
     frustum = np.zeros(len(visible), dtype=bool)
     for skeleton in skeletons:
         if skeleton is not None:
