@@ -187,7 +187,6 @@ def score_scale(scores: np.ndarray, config: ExtractionConfig) -> float:
     return float(min(1.0, np.quantile(scores, 0.75) / config.score_level))
 
 
-
 def segment_distance(xy: np.ndarray, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     """(M,) distance of (M, 2) normalized image points to the nearest skeleton segment, and its index."""
     ax, ay = skeleton.starts[:, 0], skeleton.starts[:, 1]
@@ -240,7 +239,7 @@ def _contradicted_parts(
     `depth_tolerance_m`) than of j, if it is one of the `refuting_parts`, those wider than the core
     (torso, head, thighs); the others, beside which the core already shows some of what is behind,
     refute at `thin_refute_ratio` (0: never) with `thin_refute_min_votes`. Only segments
-    whose keypoints score at least `refute_min_score` (times the person's `score_scale`: a less
+    whose keypoints score at least `refute_min_score` (times the frame's `score_scale`: a less
     confident detector), since a guessed joint puts the core beside the body. One of the
     `hidden_parts` (torso, head) is hidden under hypothesis j when its core holds that many times more
     points of clusters nearer than j: j can still be the person (someone half behind another), but

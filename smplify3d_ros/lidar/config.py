@@ -59,7 +59,7 @@ class ExtractionConfig:
     core_radius_m: float  # points this close to a skeleton are its body or an occluder, not background
     refuting_parts: list[str]  # body parts (keypoints.BODY_PARTS) wide enough to refute a cluster
     refute_min_score: float  # only segments whose keypoints score at least this refute a cluster
-    score_level: float  # a plainly seen joint's score; less confident people scale refute_min_score down (0: never)
+    score_level: float  # a plainly seen joint's score; a less confident frame scales refute_min_score down (0: never)
     refute_ratio: float  # a part refutes a cluster when its core holds this many times more points behind it
     thin_refute_ratio: float  # ...and a part not among them (a shin, a forearm) when this many times (0: never)
     thin_refute_min_votes: int  # ...with at least this many points behind the cluster
