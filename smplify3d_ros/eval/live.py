@@ -25,6 +25,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -212,7 +213,7 @@ def play_main(argv: list[str]) -> int:
 
 
 def _play_in_child(bag: Path, topics: dict[str, str], speed: float,
-                   heard: Any = None) -> tuple[int, float, int | None]:
+                   heard: Callable[[float], bool] | None = None) -> tuple[int, float, int | None]:
     """(frames, seconds, stamp offset ns) played by a player process (`play_main`) on this process's ROS
     domain. `heard(timeout_s)`: whether this process has discovered the player's publishers (the
     subscriptions' side of the match); the player starts once it returns, instead of after a fixed wait."""

@@ -131,7 +131,6 @@ class Skeleton:
     bbox: np.ndarray  # (4,) float64 padded keypoint bbox x_min, y_min, x_max, y_max, px, undistorted
     context: np.ndarray  # (4,) float64 the bbox grown by `context_pad`: its surroundings, same layout
     extent: float  # largest distance between two confident keypoints, normalized image units
-    score_scale: float = 1.0  # the frame's detector confidence against `score_level` (<= 1, `score_scale`)
 
 
 def to_normalized(uv: np.ndarray, camera: CameraModel) -> np.ndarray:
@@ -140,10 +139,8 @@ def to_normalized(uv: np.ndarray, camera: CameraModel) -> np.ndarray:
     return (np.asarray(uv, dtype=np.float64) - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
 
 
-def person_skeleton(keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig,
-                    scale: float = 1.0) -> Skeleton | None:
-    """The skeleton of one (17, 3) keypoint set (undistorted px + score), None if too few are confident;
-    `scale`: the frame's `score_scale`."""
+def person_skeleton(keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig) -> Skeleton | None:
+    """The skeleton of one (17, 3) keypoint set (undistorted px + score), None if too few are confident."""
     finite = np.all(np.isfinite(keypoints), axis=1)
     confident = finite & (np.where(finite, keypoints[:, 2], 0.0) >= config.keypoint_min_score)
     if confident.sum() < config.min_keypoints:
@@ -169,7 +166,7 @@ def person_skeleton(keypoints: np.ndarray, camera: CameraModel, config: Extracti
     scores = np.concatenate([np.minimum(score[pairs[linked, 0]], score[pairs[linked, 1]]), score[lone]])
     conf_xy = xy[confident]
     extent = float(np.max(np.linalg.norm(conf_xy[:, None] - conf_xy[None], axis=2)))
-    return Skeleton(starts, ends, parts, scores, bbox, context, extent, scale)
+    return Skeleton(starts, ends, parts, scores, bbox, context, extent)
 
 
 def score_scale(scores: np.ndarray, config: ExtractionConfig) -> float:
@@ -467,8 +464,9 @@ class _Geometry:
 
 
 def _geometry(uv: np.ndarray, z: np.ndarray, skeletons: list[Skeleton | None], camera: CameraModel,
-              config: ExtractionConfig) -> _Geometry:
+              config: ExtractionConfig, refute_scale: float) -> _Geometry:
     n_people, n_points = len(skeletons), len(uv)
+    sure_score = config.refute_min_score * refute_scale
     xy = to_normalized(uv, camera)
     g = _Geometry(
         box=np.zeros((n_people, n_points), dtype=bool), context=np.zeros((n_people, n_points), dtype=bool),
@@ -491,7 +489,7 @@ def _geometry(uv: np.ndarray, z: np.ndarray, skeletons: list[Skeleton | None], c
         d, nearest = segment_distance(xy[box], skeleton)
         g.dist[k, box] = d * z[box]
         g.part[k, box] = skeleton.parts[nearest]
-        g.sure[k, box] = skeleton.scores[nearest] >= config.refute_min_score * skeleton.score_scale
+        g.sure[k, box] = skeleton.scores[nearest] >= sure_score
         g.extent[k] = skeleton.extent
     return g
 
@@ -499,20 +497,21 @@ def _geometry(uv: np.ndarray, z: np.ndarray, skeletons: list[Skeleton | None], c
 def associate(
     points: np.ndarray, uv: np.ndarray, coords: np.ndarray, clusters: np.ndarray,
     skeletons: list[Skeleton | None], camera: CameraModel, config: ExtractionConfig,
-    depth_range: np.ndarray | None = None,
+    depth_range: np.ndarray | None = None, refute_scale: float = 1.0,
 ) -> np.ndarray:
     """(M,) int64 person index of each candidate point (-1: nobody).
 
     points: (M, 3) camera-frame candidates (ground removed); uv: (M, 2) their undistorted pixels;
     coords: (M, 3) their clustering-space coordinates (`cluster.scaled_coordinates`); clusters: (M,)
     cluster labels 0..C-1; skeletons: one per person, None for people without one; depth_range:
-    optional (P, 2) nearest and farthest depth (m) of each person's main cluster (NaN: unbounded).
+    optional (P, 2) nearest and farthest depth (m) of each person's main cluster (NaN: unbounded);
+    refute_scale: the frame's `score_scale`, on `refute_min_score`.
     """
     owner = np.full(len(points), -1, dtype=np.int64)
     if len(points) == 0 or len(skeletons) == 0:
         return owner
     z = points[:, 2].astype(np.float64)
-    g = _geometry(uv, z, skeletons, camera, config)
+    g = _geometry(uv, z, skeletons, camera, config, refute_scale)
     mask = g.dist <= config.mask_radius_m
     on_a_body = mask.any(axis=0)  # beside a box, that is a neighbour's body, not a surface going on
     g.left &= ~on_a_body

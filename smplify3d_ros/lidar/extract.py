@@ -96,8 +96,7 @@ def extract_people(
     visible, uv = visible[inside], uv[inside]
 
     # 2. Skeletons and their frusta.
-    scale = score_scale(keypoints[..., 2], config)  # the detector's confidence level
-    skeletons = [person_skeleton(kp, camera, config, scale) for kp in keypoints]
+    skeletons = [person_skeleton(kp, camera, config) for kp in keypoints]
     frustum = np.zeros(len(visible), dtype=bool)
     for skeleton in skeletons:
         if skeleton is not None:
@@ -117,7 +116,8 @@ def extract_people(
     boxes = np.array([s.bbox if s is not None else np.full(4, np.nan) for s in skeletons]).reshape(-1, 4)
     nearest = None if min_depth is None else min_depth(ground, boxes)
     owner = associate(points[candidates], cand_uv, coords, clusters, skeletons, camera, config,
-                      depth_range(len(keypoints), expected_depth, nearest))
+                      depth_range(len(keypoints), expected_depth, nearest),
+                      refute_scale=score_scale(keypoints[..., 2], config))  # the detector's confidence level
     labels[candidates] = owner.astype(np.int32)
 
     people = []
