@@ -25,7 +25,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,7 +37,6 @@ DEFAULT_PROFILE = "jackal_vlp16"  # the node's own default params_file
 FIRST_BODIES_MAX_S = 30.0  # s, longest wait past the settle for the first ~/bodies (a machine loaded by other work)
 PLAYER_MATCH_MAX_S = 30.0  # s, longest wait of the player process for the node's subscriptions
 PLAYER_MATCH_SETTLE_S = 2.0  # s, then the wait for the subscriptions' side of the match
-PLAYER_GO_SETTLE_S = 0.5  # s, the same once the node's process has discovered the player's publishers
 INPUT_TYPES = {
     "image": "sensor_msgs/msg/Image",
     "compressed_image": "sensor_msgs/msg/CompressedImage",
@@ -175,14 +173,11 @@ def bag_topic_parameters(bag: Path, params: str | None, overrides: dict[str, Any
 
 
 def play_main(argv: list[str]) -> int:
-    """The player process: `python -m smplify3d_ros.eval.live --play BAG TOPICS_JSON SPEED [--wait-for-go]`.
-    Publishes once its subscribers are matched (and, with --wait-for-go, once a line on stdin says the
-    other side has discovered its publishers), then prints `{"frames": N, "duration_s": S, "offset_ns": O}`
-    on stdout."""
+    """The player process: `python -m smplify3d_ros.eval.live --play BAG TOPICS_JSON SPEED`. Publishes
+    once its subscribers are matched, then prints `{"frames": N, "duration_s": S, "offset_ns": O}` on stdout."""
     import rclpy
 
     bag, topics, speed = Path(argv[0]), json.loads(argv[1]), float(argv[2])
-    wait_for_go = "--wait-for-go" in argv[3:]
     rclpy.init()
     try:
         node = rclpy.create_node("smplify3d_bench_live_player")
@@ -190,14 +185,8 @@ def play_main(argv: list[str]) -> int:
         if not player.wait_for_subscribers(PLAYER_MATCH_MAX_S):
             raise RuntimeError(f"no subscriber matched the player's topics within {PLAYER_MATCH_MAX_S:.0f} s")
         # the subscriptions' side of the match: messages published before it are lost (two test workers
-        # on two cores once took longer than 0.2 s, 1 s and 2 s, and a whole 6-frame bag went unheard).
-        # With --wait-for-go the node's process says when it has discovered our publishers (a line on
-        # stdin); the short settle after it covers the last step of the match.
-        if wait_for_go:
-            sys.stdin.readline()
-            time.sleep(PLAYER_GO_SETTLE_S)
-        else:
-            time.sleep(PLAYER_MATCH_SETTLE_S)
+        # on two cores once took longer than 0.2 s and than 1 s, and a whole 6-frame bag went unheard)
+        time.sleep(PLAYER_MATCH_SETTLE_S)
         frames, duration, offset = player.play(bag, speed, threading.Event())
         player.wait_for_delivery(PLAYER_MATCH_MAX_S)  # a reliable subscriber's last messages before we exit
         print(json.dumps({"frames": frames, "duration_s": duration, "offset_ns": offset}), flush=True)
@@ -212,24 +201,12 @@ def play_main(argv: list[str]) -> int:
     return 0
 
 
-def _play_in_child(bag: Path, topics: dict[str, str], speed: float,
-                   heard: Callable[[float], bool] | None = None) -> tuple[int, float, int | None]:
+def _play_in_child(bag: Path, topics: dict[str, str], speed: float) -> tuple[int, float, int | None]:
     """(frames, seconds, stamp offset ns) played by a player process (`play_main`) on this process's ROS
-    domain. `heard(timeout_s)`: whether this process has discovered the player's publishers (the
-    subscriptions' side of the match); the player starts once it returns, instead of after a fixed wait."""
+    domain."""
     command = [sys.executable, "-m", "smplify3d_ros.eval.live", "--play", str(bag), json.dumps(topics), str(speed)]
-    if heard is not None:
-        command.append("--wait-for-go")
-    child = subprocess.Popen(command, stdin=subprocess.PIPE if heard is not None else None,
-                             stdout=subprocess.PIPE, text=True, env=dict(os.environ))
+    child = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=dict(os.environ))
     try:
-        if heard is not None:
-            heard(PLAYER_MATCH_MAX_S)  # either way the player goes: a wait past it fails there, in one line
-            try:
-                child.stdin.write("go\n")
-                child.stdin.flush()
-            except (BrokenPipeError, OSError):
-                pass  # the player exited already: its status says why
         out, _ = child.communicate()
     finally:
         if child.poll() is None:
@@ -293,12 +270,7 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
             time.sleep(1.0)  # discovery
             result.frames_played, result.duration_s, result.offset_ns = player.play(bag, speed, threading.Event())
         else:
-            played = [t for t in topics.values() if t]
-
-            def heard(timeout_s: float) -> bool:
-                return _wait_for(lambda: all(helper.count_publishers(t) > 0 for t in played), timeout_s, 0.05)
-
-            result.frames_played, result.duration_s, result.offset_ns = _play_in_child(bag, topics, speed, heard)
+            result.frames_played, result.duration_s, result.offset_ns = _play_in_child(bag, topics, speed)
         time.sleep(settle_s)  # the last frame's fit and one diagnostics period
         if not result.bodies:  # the first fit ran past the settle (a machine loaded by other work)
             _wait_for(lambda: bool(result.bodies), FIRST_BODIES_MAX_S, period_s=0.2)
