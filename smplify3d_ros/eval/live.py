@@ -228,7 +228,7 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
     from msg_adapters import RclpyFactory
     from smplify3d_ros.node import create_node
 
-    os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(120, 200)))
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(20, 101)))  # <= 101: ports below the ephemeral range
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     rclpy.init()
     result = LiveResult()
