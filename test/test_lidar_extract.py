@@ -605,6 +605,26 @@ def test_a_person_merged_with_the_post_they_lean_on_keeps_their_points():
         assert found == keeps_own, (config.core_isolation_points, len(taken), int(np.isin(taken, own).sum()))
 
 
+def test_a_cluster_seen_past_the_body_is_not_its_main_cluster():
+    """A simulated robot-path scene with a 70° camera (tuning seed 118, two people): a person leaning on an
+    object 1.5 m from the camera, 521 points on them. Person and object are one cluster (1253 points), which
+    stands out from its surroundings less than the 67 points of an object 3.3 m out, seen past the body:
+    that one scored higher and the person was given 20 of its points (the fit 2.0 m off). The far cluster
+    has no point in the core of the person's confident segments, where the merged one has 533: it is
+    outshone (`outshone_core_points`) and the person keeps their own points."""
+    from smplify3d_ros.sim.config import load_sim_config
+    from smplify3d_ros.sim.world import simulate_scenario
+
+    narrow = load_sim_config(None, {"sim": {"camera": {"hfov_deg": 70.0}}})
+    sim = simulate_scenario(118, narrow, "robot", sensor="vlp16", n_people=2, distance_range=(1.5, 15.0))
+    k, own = list(sim.frame.person_ids).index(0), np.flatnonzero(sim.point_labels == 0)
+    assert len(own) >= 400
+    for config, keeps_own in ((make_config(outshone_core_points=0), False), (CONFIG, True)):
+        taken = extracted(sim, k, config).indices
+        found = len(taken) >= 0.8 * len(own) and np.isin(taken, own).mean() > 0.5
+        assert found == keeps_own, (config.outshone_core_points, len(taken), int(np.isin(taken, own).sum()))
+
+
 @pytest.mark.parametrize(("seed", "person"), [(72, 1), (211, 1)])
 def test_a_person_behind_another_gets_their_own_points_on_a_second_look(seed, person):
     """Simulated robot-path scenes (tuning seeds 72 and 211, three people): a person 9.3 m (6.4 m) out,

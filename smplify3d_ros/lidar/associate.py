@@ -336,7 +336,8 @@ def _main_clusters(
     """
     score, body_like = _qualify(counts, coverage, contradicted, mask_cover, box_fraction, depth, extent,
                                 surface, config, depth_range)
-    main, owners = _assign(score, body_like & ~_hides_the_body(counts, config), counts, config)
+    main, owners = _assign(score, body_like & ~_hides_the_body(counts, config) & ~_outshone(counts, config),
+                           counts, config)
     body_like[:, owners > 0] = False  # someone's main cluster is nobody's extra
     return main, body_like
 
@@ -384,6 +385,19 @@ def _hides_the_body(counts: dict[str, np.ndarray], config: ExtractionConfig) -> 
     if config.occluder_min_points <= 0:
         return np.zeros(counts["in_mask"].shape, dtype=bool)
     return (counts["in_mask"] >= config.occluder_min_points) & (counts["core"] == 0) & (counts["core_behind"] > 0)
+
+
+def _outshone(counts: dict[str, np.ndarray], config: ExtractionConfig) -> np.ndarray:
+    """(P, C) bool: the cluster has no point in person k's core while another cluster has
+    `outshone_core_points` there. Points that close to the confident segments are the body (or something
+    in front of it); a cluster beside them only, none on them, is seen past the body, and may not be its
+    main cluster however much of the mask it fills (a person 1.5 m from the camera leaning on an object,
+    their cluster merged with it, lost to an object 2 m behind them; tuning seed 118 with a 70° camera).
+    It may still join a body as an extra cluster."""
+    if config.outshone_core_points <= 0:
+        return np.zeros(counts["core"].shape, dtype=bool)
+    core = counts["core"]
+    return (core == 0) & (core.max(axis=1, keepdims=True) >= config.outshone_core_points)
 
 
 def _core_behind(core: np.ndarray, z: np.ndarray, depth: np.ndarray, config: ExtractionConfig) -> np.ndarray:
@@ -608,8 +622,8 @@ def _score_clusters(
         score, second = _qualify(counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent,
                                  surface, config, depth_range)
         owners = np.bincount(main[placed], minlength=n_clusters)
-        main, owners = _assign(score, second & ~_hides_the_body(counts, config), counts, config, main, owners,
-                               missing)
+        main, owners = _assign(score, second & ~_hides_the_body(counts, config) & ~_outshone(counts, config),
+                               counts, config, main, owners, missing)
         body_like[missing] = second[missing]
         body_like[:, owners > 0] = False
     return main, body_like, depth
