@@ -22,20 +22,18 @@ import bag_fixture
 import numpy as np
 
 
-def isolate_ros_graph(apart: bool = False) -> int:
-    """Keep DDS traffic on loopback, in a domain of our own; call before rclpy.init. `apart`: a
-    domain no other test of the run uses (this worker's + 4), for a test whose processes must meet
-    nothing the worker's earlier tests left in its own domain."""
+def isolate_ros_graph() -> int:
+    """Keep DDS traffic on loopback, in a domain of our own; call before rclpy.init."""
     # each pytest-xdist worker (gw0, gw1, ...) in a domain apart from the others' (a random base per run),
     # at most 101: the UDP ports of higher domains fall in Linux's ephemeral range (32768-60999)
     worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:] or 0)
     domain = int(os.environ.get("SMPLIFY3D_TEST_DOMAIN", random.randrange(20, 96, 8) + worker))
     os.environ["SMPLIFY3D_TEST_DOMAIN"] = str(domain)
-    os.environ["ROS_DOMAIN_ID"] = str(domain + 4 if apart else domain)
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.pop("ROS_LOCALHOST_ONLY", None)  # deprecated in Jazzy; the range above replaces it
-    return int(os.environ["ROS_DOMAIN_ID"])
+    return domain
 
 
 @lru_cache(maxsize=1)

@@ -36,7 +36,6 @@ from smplify3d_ros.keypoints import COCO17_NAMES
 DEFAULT_PROFILE = "jackal_vlp16"  # the node's own default params_file
 FIRST_BODIES_MAX_S = 30.0  # s, longest wait past the settle for the first ~/bodies (a machine loaded by other work)
 PLAYER_MATCH_MAX_S = 30.0  # s, longest wait of the player process for the node's subscriptions
-PLAYER_MATCH_SETTLE_S = 2.0  # s, then the wait for the subscriptions' side of the match
 INPUT_TYPES = {
     "image": "sensor_msgs/msg/Image",
     "compressed_image": "sensor_msgs/msg/CompressedImage",
@@ -184,9 +183,12 @@ def play_main(argv: list[str]) -> int:
         player = _Player(topics, node)
         if not player.wait_for_subscribers(PLAYER_MATCH_MAX_S):
             raise RuntimeError(f"no subscriber matched the player's topics within {PLAYER_MATCH_MAX_S:.0f} s")
-        # the subscriptions' side of the match: messages published before it are lost (two test workers
-        # on two cores once took longer than 0.2 s and than 1 s, and a whole 6-frame bag went unheard)
-        time.sleep(PLAYER_MATCH_SETTLE_S)
+        # our side of the match is made; the subscriptions' side may come later (messages published before
+        # it are lost: on a loaded machine a whole 6-frame bag went unheard 2 s after ours): the parent says
+        # when every subscription of the node has matched a publisher of ours
+        print("matched", flush=True)
+        if sys.stdin.readline().strip() != "go":
+            raise RuntimeError("the parent process did not say go")
         frames, duration, offset = player.play(bag, speed, threading.Event())
         player.wait_for_delivery(PLAYER_MATCH_MAX_S)  # a reliable subscriber's last messages before we exit
         print(json.dumps({"frames": frames, "duration_s": duration, "offset_ns": offset}), flush=True)
@@ -201,12 +203,19 @@ def play_main(argv: list[str]) -> int:
     return 0
 
 
-def _play_in_child(bag: Path, topics: dict[str, str], speed: float) -> tuple[int, float, int | None]:
+def _play_in_child(bag: Path, topics: dict[str, str], speed: float,
+                   subscribed: Any = lambda: True) -> tuple[int, float, int | None]:
     """(frames, seconds, stamp offset ns) played by a player process (`play_main`) on this process's ROS
-    domain."""
+    domain, once its publishers have matched their subscribers and `subscribed()` (the subscriptions' side
+    of the match) holds."""
     command = [sys.executable, "-m", "smplify3d_ros.eval.live", "--play", str(bag), json.dumps(topics), str(speed)]
-    child = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=dict(os.environ))
+    child = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=dict(os.environ))
     try:
+        if child.stdout.readline().strip() == "matched":
+            if not _wait_for(subscribed, PLAYER_MATCH_MAX_S):
+                raise RuntimeError(f"the node's subscriptions matched no publisher within {PLAYER_MATCH_MAX_S:.0f} s")
+            child.stdin.write("go\n")
+            child.stdin.flush()
         out, _ = child.communicate()
     finally:
         if child.poll() is None:
@@ -270,7 +279,9 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
             time.sleep(1.0)  # discovery
             result.frames_played, result.duration_s, result.offset_ns = player.play(bag, speed, threading.Event())
         else:
-            result.frames_played, result.duration_s, result.offset_ns = _play_in_child(bag, topics, speed)
+            inputs = [sub for sub in node.subscriptions if sub.topic_name in set(topics.values()) - {""}]
+            result.frames_played, result.duration_s, result.offset_ns = _play_in_child(
+                bag, topics, speed, lambda: all(sub.get_publisher_count() > 0 for sub in inputs))
         time.sleep(settle_s)  # the last frame's fit and one diagnostics period
         if not result.bodies:  # the first fit ran past the settle (a machine loaded by other work)
             _wait_for(lambda: bool(result.bodies), FIRST_BODIES_MAX_S, period_s=0.2)
