@@ -336,8 +336,7 @@ def _main_clusters(
     """
     score, body_like = _qualify(counts, coverage, contradicted, mask_cover, box_fraction, depth, extent,
                                 surface, config, depth_range)
-    main, owners = _assign(score, body_like & ~_hides_the_body(counts, config) & ~_outshone(counts, config),
-                           counts, config)
+    main, owners = _assign(score, body_like & ~_barred(counts, config), counts, config)
     body_like[:, owners > 0] = False  # someone's main cluster is nobody's extra
     return main, body_like
 
@@ -373,6 +372,12 @@ def _min_isolation(counts: dict[str, np.ndarray], config: ExtractionConfig) -> n
     if config.core_isolation_points > 0:
         needed[counts["core"] >= config.core_isolation_points] = min(config.core_min_isolation, config.min_isolation)
     return needed
+
+
+def _barred(counts: dict[str, np.ndarray], config: ExtractionConfig) -> np.ndarray:
+    """(P, C) bool: clusters that may not be the person's main cluster, on the first look and the second:
+    an object hiding the body (`_hides_the_body`), or a cluster seen past it (`_outshone`)."""
+    return _hides_the_body(counts, config) | _outshone(counts, config)
 
 
 def _hides_the_body(counts: dict[str, np.ndarray], config: ExtractionConfig) -> np.ndarray:
@@ -622,8 +627,7 @@ def _score_clusters(
         score, second = _qualify(counts, coverage, contradicted, fraction, g.box_fraction, depth, g.extent,
                                  surface, config, depth_range)
         owners = np.bincount(main[placed], minlength=n_clusters)
-        main, owners = _assign(score, second & ~_hides_the_body(counts, config) & ~_outshone(counts, config),
-                               counts, config, main, owners, missing)
+        main, owners = _assign(score, second & ~_barred(counts, config), counts, config, main, owners, missing)
         body_like[missing] = second[missing]
         body_like[:, owners > 0] = False
     return main, body_like, depth
