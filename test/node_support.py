@@ -36,6 +36,11 @@ def isolate_ros_graph() -> int:
     return domain
 
 
+def child_env() -> dict[str, str]:
+    """This process's environment, with the repository first on PYTHONPATH: for the processes a test starts."""
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
+
+
 @lru_cache(maxsize=1)
 def config():
     from smplify3d_ros.config import load_config

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 
@@ -13,14 +12,13 @@ import pytest
 def test_the_node_is_timed_live_on_a_bag_played_by_a_process_of_its_own(tmp_path):
     """`smplify3d bench-live` as a user runs it, in a process of its own."""
     pytest.importorskip("rclpy")
-    from node_support import REPO, isolate_ros_graph, live_bag
+    from node_support import REPO, child_env, isolate_ros_graph, live_bag
 
     isolate_ros_graph()
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
     out = tmp_path / "live.json"
     proc = subprocess.run([sys.executable, "-c", "import sys; from smplify3d_ros.cli import main; sys.exit(main())",
                            "bench-live", str(live_bag()), "--settle", "2", "--json", str(out)],
-                          cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+                          cwd=REPO, env=child_env(), capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "Traceback" not in proc.stderr, proc.stderr
     result = json.loads(out.read_text())

@@ -3,7 +3,6 @@ does, with its default reliable QoS) reaches the node; and the compatibility rul
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import time
@@ -20,10 +19,9 @@ INPUT_TOPICS = ("/camera/color/image_raw", "/camera/color/camera_info", "/velody
 
 
 def _publisher(reliability: str) -> subprocess.Popen:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
     return subprocess.Popen([sys.executable, str(Path(__file__).parent / "qos_bag_publisher.py"), str(BAG),
-                             reliability, "5"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+                             reliability, "5"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                            env=node_support.child_env())
 
 
 def _bag_images() -> int:
