@@ -9,15 +9,17 @@ import sys
 import pytest
 
 
-def test_the_node_is_timed_live_on_a_bag_played_by_a_process_of_its_own(tmp_path):
-    """`smplify3d bench-live` as a user runs it, in a process of its own."""
+@pytest.mark.parametrize("player", [[], ["--in-process-player"]], ids=["player_process", "in_process_player"])
+def test_the_node_is_timed_live_on_a_bag_played_by_a_process_of_its_own(tmp_path, player):
+    """`smplify3d bench-live` as a user runs it, in a process of its own; the bag played by a process of its
+    own or in the node's process, each once both sides of the match are made."""
     pytest.importorskip("rclpy")
     from node_support import REPO, child_env, isolate_ros_graph, live_bag
 
     isolate_ros_graph()
     out = tmp_path / "live.json"
     proc = subprocess.run([sys.executable, "-c", "import sys; from smplify3d_ros.cli import main; sys.exit(main())",
-                           "bench-live", str(live_bag()), "--settle", "2", "--json", str(out)],
+                           "bench-live", str(live_bag()), "--settle", "2", "--json", str(out), *player],
                           cwd=REPO, env=child_env(), capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "Traceback" not in proc.stderr, proc.stderr

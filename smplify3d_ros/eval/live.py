@@ -35,7 +35,7 @@ from smplify3d_ros.keypoints import COCO17_NAMES
 
 DEFAULT_PROFILE = "jackal_vlp16"  # the node's own default params_file
 FIRST_BODIES_MAX_S = 30.0  # s, longest wait past the settle for the first ~/bodies (a machine loaded by other work)
-PLAYER_MATCH_MAX_S = 30.0  # s, longest wait of the player process for the node's subscriptions
+PLAYER_MATCH_MAX_S = 30.0  # s, longest wait for the player and the node to match each other
 INPUT_TYPES = {
     "image": "sensor_msgs/msg/Image",
     "compressed_image": "sensor_msgs/msg/CompressedImage",
@@ -275,13 +275,18 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
         executor.add_node(helper)
         spinner = threading.Thread(target=executor.spin, daemon=True)
         spinner.start()
+        inputs = [sub for sub in node.subscriptions if sub.topic_name in set(topics.values()) - {""}]
+
+        def subscribed() -> bool:  # the subscriptions' side of the match
+            return all(sub.get_publisher_count() > 0 for sub in inputs)
+
         if player is not None:
-            time.sleep(1.0)  # discovery
+            # both sides of the match, as for the player process: what is published before is lost
+            if not (player.wait_for_subscribers(PLAYER_MATCH_MAX_S) and _wait_for(subscribed, PLAYER_MATCH_MAX_S)):
+                raise RuntimeError(f"the player and the node did not match within {PLAYER_MATCH_MAX_S:.0f} s")
             result.frames_played, result.duration_s, result.offset_ns = player.play(bag, speed, threading.Event())
         else:
-            inputs = [sub for sub in node.subscriptions if sub.topic_name in set(topics.values()) - {""}]
-            result.frames_played, result.duration_s, result.offset_ns = _play_in_child(
-                bag, topics, speed, lambda: all(sub.get_publisher_count() > 0 for sub in inputs))
+            result.frames_played, result.duration_s, result.offset_ns = _play_in_child(bag, topics, speed, subscribed)
         time.sleep(settle_s)  # the last frame's fit and one diagnostics period
         if not result.bodies:  # the first fit ran past the settle (a machine loaded by other work)
             _wait_for(lambda: bool(result.bodies), FIRST_BODIES_MAX_S, period_s=0.2)
