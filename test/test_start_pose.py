@@ -108,19 +108,40 @@ def test_thighs_pointing_at_the_camera_are_found_from_the_flexed_leg_start(anny_
     assert error[2] < 0.08 and error[0] > 2 * error[2], error  # measured: 363 mm against 23 mm
 
 
-def test_no_flexed_leg_start_where_the_image_shows_no_thigh(anny_model, rng):
-    import dataclasses
+def _legs_fitter_px(model, min_px: float) -> Fitter:
+    config = load_config(overrides={"fitting": {"init": {"flexed_leg_hypotheses": 2, "flexed_leg_min_px": min_px}}})
+    return Fitter(config.fitting, model)
 
+
+def _starts(fitter: Fitter, obs, K) -> int:
     from smplify3d_ros.fitting.options import FitOptions
 
+    batch = fitter._start([obs], K, None, FitOptions())
+    fitter._initialize(batch)
+    return len(batch.hypotheses[0])
+
+
+def test_no_flexed_leg_start_where_neither_the_image_nor_the_points_can_tell(anny_model, rng):
+    """No thigh seen: the flexed starts are tried only where both knees are seen, with the person's points,
+    and for a person tall enough in the image (`init.flexed_leg_min_px`) for those to tell them apart."""
+    import dataclasses
+
     obs, K, _ = _sitting_person(anny_model, rng)
-    fitter = _legs_fitter(anny_model, 2)
-    hidden = obs.keypoints.copy()
-    hidden[[13, 14], 2] = 0.1  # both knees hidden
-    counts = []
-    for keypoints in (obs.keypoints, hidden):
-        batch = fitter._start([dataclasses.replace(obs, keypoints=keypoints)], K, None, FitOptions())
-        fitter._initialize(batch)
-        counts.append(len(batch.hypotheses[0]))
-    headings = counts[1]
-    assert counts[0] == headings + min(2, headings)
+
+    def scored(joints: list[int], score: float, points: bool = True):
+        keypoints = obs.keypoints.copy()
+        keypoints[joints, 2] = score
+        return dataclasses.replace(obs, keypoints=keypoints, points=obs.points if points else obs.points[:0])
+
+    low_hips = scored([11, 12], 0.5)  # the thighs hide the hips; the knees are seen
+    knee_hidden = scored([11, 12, 14], 0.1)
+    tall_px = float(K[0, 0]) * 1.70 / 3.5  # about 150 px at 3.5 m
+    near, far = _legs_fitter_px(anny_model, 0.5 * tall_px), _legs_fitter_px(anny_model, 2.0 * tall_px)
+    headings = _starts(near, scored([11, 12], 0.5, points=False), K)  # no points: the standing starts alone
+    flexed = headings + min(2, headings)
+    assert _starts(near, obs, K) == flexed  # a thigh seen
+    assert _starts(far, obs, K) == flexed  # ... whatever the person's size
+    assert _starts(near, low_hips, K) == flexed  # no thigh, but both knees and points, on a person this tall
+    assert _starts(far, low_hips, K) == headings  # ... too small in the image for them to tell
+    assert _starts(near, knee_hidden, K) == headings  # a knee hidden: the leg is the priors' guess
+    assert _starts(_legs_fitter_px(anny_model, 0.0), low_hips, K) == headings  # 0: a thigh must be seen

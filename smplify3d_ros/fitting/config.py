@@ -101,6 +101,7 @@ class InitConfig:
     refine_max_vertices: int
     start_elbow_flexion_deg: float
     flexed_leg_hypotheses: int
+    flexed_leg_min_px: float
     start_hip_flexion_deg: float
     start_knee_flexion_deg: float
 
@@ -118,6 +119,7 @@ class InitConfig:
         require(self.refine_iterations >= 0, "refine_iterations must be >= 0")
         require(0 <= self.start_elbow_flexion_deg <= 150, "start_elbow_flexion_deg must be in [0, 150]")
         require(self.flexed_leg_hypotheses >= 0, "flexed_leg_hypotheses must be >= 0 (0: none)")
+        require(self.flexed_leg_min_px >= 0, "flexed_leg_min_px must be >= 0 (0: only with a thigh seen)")
         require(0 <= self.start_hip_flexion_deg <= 125, "start_hip_flexion_deg must be in [0, 125]")
         require(0 <= self.start_knee_flexion_deg <= 150, "start_knee_flexion_deg must be in [0, 150]")
         require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")

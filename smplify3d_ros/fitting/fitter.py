@@ -221,8 +221,8 @@ class Fitter:
         """Step 1: an external estimate of this model when a person has one, else the built-in one's
         hypotheses (the first stands in until `_refine_builtin` picks one): each heading hypothesis
         standing, then the first `init.flexed_leg_hypotheses` of them again with flexed legs where the
-        image shows a thigh (`initializer.thigh_seen`), then the person's own `hypothesis` (a track's warm
-        start), if any."""
+        image shows a thigh, or the knees and the points can tell (`initializer.flexed_legs_tried`), then
+        the person's own `hypothesis` (a track's warm start), if any."""
         cfg = self.config
         mean_shape = self.model.mean_shape().cpu().double().numpy()
         K = batch.K.cpu().double().numpy()
@@ -240,7 +240,8 @@ class Fitter:
             hypotheses = initializer.builtin_hypotheses(p, K, cfg.init, bool(batch.use_lidar[i]),
                                                         len(p.points) >= cfg.min_points_depth)
             starts = [(self._start_pose, root, pelvis) for root, pelvis in hypotheses]
-            if initializer.thigh_seen(p, cfg.init):
+            if hypotheses and initializer.flexed_legs_tried(p, K, cfg.init, bool(batch.use_lidar[i]),
+                                                            float(hypotheses[0][1][2])):
                 starts += [(self._flexed_start_pose, root, pelvis)
                            for root, pelvis in hypotheses[: cfg.init.flexed_leg_hypotheses]]
             for pose, root, pelvis in starts:

@@ -15,8 +15,9 @@ position and heading are those of the real camera:
    torso direction, never the face alone).
 3. Limbs: a short fit of pose, orientation and position to the keypoints, the points and the depth of
    the points that hit each limb (`fitting.limbs`), with the anatomical priors only, from every
-   hypothesis, standing and, for the first headings where a thigh is seen (`thigh_seen`), with flexed
-   legs; the full objective picks the hypothesis (`fitter.Fitter._refine_builtin`).
+   hypothesis, standing and, for the first headings, with flexed legs where a thigh is seen, or the
+   knees and the points can tell (`flexed_legs_tried`); the full objective picks the hypothesis
+   (`fitter.Fitter._refine_builtin`).
 """
 
 from __future__ import annotations
@@ -92,6 +93,25 @@ def thigh_seen(obs: PersonObservation, cfg: InitConfig) -> bool:
     kp = obs.keypoints
     return any(min(kp[KP[f"{side}_hip"], 2], kp[KP[f"{side}_knee"], 2]) >= cfg.limb_keypoint_conf
                for side in ("left", "right"))
+
+
+def flexed_legs_tried(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, use_points: bool,
+                      depth: float) -> bool:
+    """Whether the flexed-leg starts join the standing ones: where the keypoints show a thigh
+    (`thigh_seen`), or, without one, where they show both knees (at `limb_keypoint_conf`), the person has
+    LiDAR points (`use_points`) and stands at least `flexed_leg_min_px` tall in the image at the
+    initializer's `depth` (f·`body_height`/depth). A crouching or kneeling person's hips are often scored
+    low (the thighs hide them) while the knees are seen, and the points then tell the two starts apart. A
+    hidden knee leaves the leg to the priors (two walkers with a knee hidden, on tuning seeds at 2-8 m,
+    went 26 and 43 mm further off with the flexed starts tried), and a small, far person's points and
+    keypoints cannot tell (a side-on walker 12 m out on bags/far kept a flexed start turned the wrong
+    way); docs/benchmarks.md, "Flexed-leg starts"."""
+    if thigh_seen(obs, cfg):
+        return True
+    knees_seen = all(obs.keypoints[KP[f"{side}_knee"], 2] >= cfg.limb_keypoint_conf for side in ("left", "right"))
+    if not (knees_seen and use_points) or cfg.flexed_leg_min_px <= 0 or not depth > 0:
+        return False
+    return 0.5 * float(K[0, 0] + K[1, 1]) * cfg.body_height / depth >= cfg.flexed_leg_min_px
 
 
 def predicted_depth(obs: PersonObservation) -> float | None:
