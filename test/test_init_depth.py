@@ -12,6 +12,7 @@ from smplify3d_ros.fitting.init import (
     estimate_depth,
     few_points_depth,
     ground_depth,
+    nearest_depth,
     points_too_near,
     upright_root_orient,
 )
@@ -56,6 +57,31 @@ def test_a_raised_foot_does_not_push_an_unseen_person_away(anny_model):
     raised_obs = dataclasses.replace(obs, keypoints=raised)
     assert ground_depth(raised_obs, K, cfg) / true_z - 1 > 0.3  # ground contact alone is far off
     assert abs(estimate_depth(raised_obs, K, cfg, use_points=False) / true_z - 1) < 0.2
+
+
+def test_arms_raised_above_the_head_do_not_bring_the_nearest_depth_closer(anny_model):
+    """The nearest depth a person's points may lie at (half the whole-body cue, here the only one: no
+    ground plane, the hips unsure) reads the span from the head to the ankles, not the keypoint box: wrists
+    raised high above the head make the box taller, not the person. An object in front at half their
+    depth is then still too near (Ouster-64 tuning seed 39: a box 25 % taller let one at 0.48 x pass)."""
+    cfg = load_config().fitting.init
+    obs, pelvis, K = _person_on_ground(anny_model, distance=5.4)
+    kp = obs.keypoints.copy()
+    kp[[KP["left_hip"], KP["right_hip"]], 2] = 0.1  # no torso cue
+    obs = dataclasses.replace(obs, keypoints=kp, ground=None)
+    raised = kp.copy()
+    top = kp[:, 1].min()
+    raised[[KP["left_wrist"], KP["right_wrist"]], 1] = top - 0.3 * (kp[:, 1].max() - top)  # hands up
+    raised_obs = dataclasses.replace(obs, keypoints=raised,
+                                     bbox=np.array([*raised[:, :2].min(0), *raised[:, :2].max(0)]))
+    true_z = float(pelvis[2])
+    bound = nearest_depth(obs, K, cfg)
+    assert abs(bound / (cfg.points_min_depth_ratio * true_z) - 1) < 0.15
+    assert nearest_depth(raised_obs, K, cfg) == bound
+    # half their depth: the box's height would have let it pass (its bound: 0.46 x their depth)
+    in_front = dataclasses.replace(raised_obs, points=_occluder_points(raised_obs, K, 0.5 * true_z))
+    assert points_too_near(in_front, K, cfg)
+    assert not points_too_near(raised_obs, K, cfg)  # their own points stay
 
 
 def _occluder_points(obs, K, depth, n=200, seed=0):

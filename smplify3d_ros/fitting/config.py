@@ -102,10 +102,12 @@ class InitConfig:
     start_elbow_flexion_deg: float
     flexed_leg_hypotheses: int
     flexed_leg_min_px: float
+    head_ankle_fraction: float
     start_hip_flexion_deg: float
     start_knee_flexion_deg: float
 
     def __post_init__(self) -> None:
+        require(0.0 < self.head_ankle_fraction <= 1.0, "head_ankle_fraction must be in (0, 1]")
         for name in ("body_height", "torso_height", "shoulder_width", "hip_width", "refine_lr", "limb_radius",
                      "limb_depth_band", "limb_depth_sigma", "torso_depth_band", "lidar_heading_min_spread"):
             require(getattr(self, name) > 0, f"{name} must be > 0")

@@ -71,8 +71,12 @@ def size_depths(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, whole_bo
     (`ground_depth`), the torso's pixel height for `torso_height`, and the keypoint box's height for
     `body_height`. Each is an upper bound, give or take the person's own size: foreshortening (a torso
     bent over), a raised foot and a hidden part only shrink a length in the image, and so move its depth
-    away. `whole_body`: the box only when it spans a head keypoint and an ankle (else a hidden body part
-    makes it a guess, not a bound)."""
+    away. `whole_body` (the bounds of `nearest_depth`): instead of the box, the span from the highest
+    head keypoint to the lowest ankle for `head_ankle_fraction` x `body_height`, and only when both are
+    seen (else a hidden body part makes it a guess, not a bound). The box also holds arms raised above
+    the head: a person reaching up 5.4 m out had a box 25 % taller than their head-to-ankle span, which
+    let an object 2.55 m in front of them pass for them (Ouster-64 tuning seed 39; docs/benchmarks.md,
+    "Depth without the LiDAR, and points that are not the person's")."""
     depths = [d for d in (ground_depth(obs, K, cfg),) if d is not None]
     kp = obs.keypoints
     f = 0.5 * (K[0, 0] + K[1, 1])
@@ -81,8 +85,12 @@ def size_depths(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, whole_bo
         if torso_px > 1.0:
             depths.append(float(f * cfg.torso_height / torso_px))
     seen = kp[:, 2] >= cfg.keypoint_conf
-    if not whole_body or (seen[HEAD].any() and seen[ANKLES].any()):
+    if not whole_body:
         depths.append(float(f * cfg.body_height / max(float(obs.bbox[3] - obs.bbox[1]), 1.0)))
+    elif seen[HEAD].any() and seen[ANKLES].any():
+        head, ankles = [i for i in HEAD if seen[i]], [i for i in ANKLES if seen[i]]
+        span = float(kp[ankles, 1].max() - kp[head, 1].min())
+        depths.append(float(f * cfg.head_ankle_fraction * cfg.body_height / max(span, 1.0)))
     return depths
 
 
