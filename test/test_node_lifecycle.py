@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -119,9 +118,8 @@ def test_spin_publishes_diagnostics_then_destroys_cleanly():
 
 
 def _start(args: list[str]) -> subprocess.Popen:
-    env = node_support.child_env()
     node_support.isolate_ros_graph()
-    env.update({k: os.environ[k] for k in ("ROS_DOMAIN_ID", "RMW_IMPLEMENTATION", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+    env = node_support.child_env()  # the graph's settings included
     env["PYTHONUNBUFFERED"] = "1"
     return subprocess.Popen([sys.executable, "-m", "smplify3d_ros.node", "--ros-args", *args], cwd=REPO, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

@@ -84,11 +84,12 @@ def size_depths(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, whole_bo
         torso_px = np.linalg.norm(_mid(kp, "left_shoulder", "right_shoulder") - _mid(kp, "left_hip", "right_hip"))
         if torso_px > 1.0:
             depths.append(float(f * cfg.torso_height / torso_px))
-    seen = kp[:, 2] >= cfg.keypoint_conf
     if not whole_body:
         depths.append(float(f * cfg.body_height / max(float(obs.bbox[3] - obs.bbox[1]), 1.0)))
-    elif seen[HEAD].any() and seen[ANKLES].any():
-        head, ankles = [i for i in HEAD if seen[i]], [i for i in ANKLES if seen[i]]
+        return depths
+    seen = kp[:, 2] >= cfg.keypoint_conf
+    head, ankles = [i for i in HEAD if seen[i]], [i for i in ANKLES if seen[i]]
+    if head and ankles:
         span = float(kp[ankles, 1].max() - kp[head, 1].min())
         depths.append(float(f * cfg.head_ankle_fraction * cfg.body_height / max(span, 1.0)))
     return depths
