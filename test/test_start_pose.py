@@ -72,8 +72,8 @@ def test_forearms_held_towards_the_camera_are_found_from_the_bent_start(anny_mod
 LEGS = ("left_hip", "right_hip", "left_knee", "right_knee")
 
 
-def _legs_fitter(model, hypotheses: int) -> Fitter:
-    config = load_config(overrides={"fitting": {"init": {"flexed_leg_hypotheses": hypotheses}}})
+def _legs_fitter(model, hypotheses: int, **init) -> Fitter:
+    config = load_config(overrides={"fitting": {"init": {"flexed_leg_hypotheses": hypotheses, **init}}})
     return Fitter(config.fitting, model)
 
 
@@ -108,11 +108,6 @@ def test_thighs_pointing_at_the_camera_are_found_from_the_flexed_leg_start(anny_
     assert error[2] < 0.08 and error[0] > 2 * error[2], error  # measured: 363 mm against 23 mm
 
 
-def _legs_fitter_px(model, min_px: float) -> Fitter:
-    config = load_config(overrides={"fitting": {"init": {"flexed_leg_hypotheses": 2, "flexed_leg_min_px": min_px}}})
-    return Fitter(config.fitting, model)
-
-
 def _starts(fitter: Fitter, obs, K) -> int:
     from smplify3d_ros.fitting.options import FitOptions
 
@@ -136,7 +131,7 @@ def test_no_flexed_leg_start_where_neither_the_image_nor_the_points_can_tell(ann
     low_hips = scored([11, 12], 0.5)  # the thighs hide the hips; the knees are seen
     knee_hidden = scored([11, 12, 14], 0.1)
     tall_px = float(K[0, 0]) * 1.70 / 3.5  # about 150 px at 3.5 m
-    near, far = _legs_fitter_px(anny_model, 0.5 * tall_px), _legs_fitter_px(anny_model, 2.0 * tall_px)
+    near, far = (_legs_fitter(anny_model, 2, flexed_leg_min_px=k * tall_px) for k in (0.5, 2.0))
     headings = _starts(near, scored([11, 12], 0.5, points=False), K)  # no points: the standing starts alone
     flexed = headings + min(2, headings)
     assert _starts(near, obs, K) == flexed  # a thigh seen
@@ -144,4 +139,5 @@ def test_no_flexed_leg_start_where_neither_the_image_nor_the_points_can_tell(ann
     assert _starts(near, low_hips, K) == flexed  # no thigh, but both knees and points, on a person this tall
     assert _starts(far, low_hips, K) == headings  # ... too small in the image for them to tell
     assert _starts(near, knee_hidden, K) == headings  # a knee hidden: the leg is the priors' guess
-    assert _starts(_legs_fitter_px(anny_model, 0.0), low_hips, K) == headings  # 0: a thigh must be seen
+    thigh_only = _legs_fitter(anny_model, 2, flexed_leg_min_px=0.0)
+    assert _starts(thigh_only, low_hips, K) == headings  # 0: a thigh must be seen
