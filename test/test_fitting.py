@@ -202,6 +202,33 @@ def test_the_neutral_prior_weighs_more_on_people_small_in_the_image(anny_model):
             np.testing.assert_allclose(weighted.joints, plain.joints, atol=1e-6)
 
 
+def test_the_lidar_has_more_say_over_a_person_with_more_points(anny_model):
+    """`chamfer_points_ref`: L_3D is a mean over the points, so without it 400 points weigh as much
+    against noisy keypoints as 20 do. With it, a person with 400 points gets `chamfer_gain_max` times
+    the weight (their mesh ends nearer those points), and one with fewer than the reference is fitted
+    exactly as without."""
+    from scipy.spatial import cKDTree
+
+    K = default_intrinsics()
+
+    def fit(reference: float, n_points: int):
+        overrides = {"fitting": {"profiles": {"robot": {"chamfer_points_ref": reference}}}}
+        fitter = Fitter(load_config(overrides=overrides).fitting, anny_model)
+        sp = make_person(anny_model, np.random.default_rng(7), K, distance=3.0, yaw=0.4, n_points=n_points,
+                         point_noise=0.005, keypoint_noise_px=8.0, pose_spread=0.5)
+        sp.observation.init = None
+        return fitter.fit([sp.observation], K)[0], sp.observation.points
+
+    def points_to_mesh(f, points) -> float:
+        return float(cKDTree(f.vertices).query(points)[0].mean())
+
+    (plain, points), (weighted, _) = fit(0.0, 400), fit(25.0, 400)
+    assert points_to_mesh(weighted, points) < 0.9 * points_to_mesh(plain, points), (
+        points_to_mesh(weighted, points), points_to_mesh(plain, points))
+    (few_plain, _), (few_weighted, _) = fit(0.0, 20), fit(25.0, 20)
+    np.testing.assert_allclose(few_weighted.joints, few_plain.joints, atol=1e-6)
+
+
 def test_arms_the_image_shows_bent_are_not_pulled_towards_hanging(anny_model):
     """`neutral_robust_scale`: the neutral prior picks the least-turned pose for limbs the image cannot
     place in depth, and saturates beyond its scale, so that hands on the hips, which the keypoints show

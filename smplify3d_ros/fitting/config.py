@@ -197,9 +197,13 @@ class OptimizerProfile:
     neutral_robust_scale: float  # Geman-McClure scale of the neutral prior (range widths); 0: quadratic
     joint_motion_relative: bool  # the joint motion hold on the joints about their hip midpoint (False: where they are)
     free_space_margin_m: float  # a beam is blocked when the body is nearer than its point less this (m)
+    chamfer_points_ref: float  # λ_3D² of stages 2-3 × min(points / this, chamfer_gain_max), at least 1; 0: off
+    chamfer_gain_max: float  # the largest of those factors
 
     def __post_init__(self) -> None:
         require(self.lr > 0, "lr must be > 0")
+        require(self.chamfer_points_ref >= 0, "chamfer_points_ref must be >= 0 (0 = off)")
+        require(self.chamfer_gain_max >= 1, "chamfer_gain_max must be >= 1")
         require(self.optimizer in ("adam", "lm"), "optimizer must be adam or lm")
         require(self.lm_damping > 0, "lm_damping must be > 0")
         require(self.pixel_reference_px >= 0, "pixel_reference_px must be >= 0 (0 = raw pixels)")

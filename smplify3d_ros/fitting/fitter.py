@@ -541,6 +541,7 @@ class Fitter:
                                             for i, p in enumerate(batch.people)], dtype=torch.bool, device=dev),
             pixel_scale=self._pixel_scale(batch),
             neutral_scale=self._neutral_scale(batch),
+            lidar_gain=self._lidar_gain(batch),
             up=torch.as_tensor(np.stack([p.ground[:3] if p.ground is not None else (0.0, -1.0, 0.0)
                                          for p in batch.people]), dtype=self.dtype, device=dev),
             keypoint_depth=None if batch.keypoint_depth is None else torch.as_tensor(
@@ -601,6 +602,21 @@ class Fitter:
         if all(np.isnan(r).all() for r in rows):
             return None
         return self._tensor(rows)
+
+    def _lidar_gain(self, batch: Batch) -> torch.Tensor | None:
+        """(B,) the factor on each person's λ_3D² in the mesh and image stages: clip(points /
+        `chamfer_points_ref`, 1, `chamfer_gain_max`) (None: off). L_3D is a mean over the points, so
+        without it a person with 20 points and one with 500 give the LiDAR the same say against the
+        image; with it, as many points as a VLP-16 puts on a person 10 m out keep the plain weight,
+        where a pull harder than that cost accuracy, and four times as many or more, on whom the
+        image's noise costs more than the points' own, get four times the weight (docs/benchmarks.md,
+        "The LiDAR's say grows with its points")."""
+        opt = self.config.optimizer
+        if opt.chamfer_points_ref <= 0:
+            return None
+        n = np.array([len(p.points) for p in batch.people], dtype=np.float64)
+        gain = np.clip(n / opt.chamfer_points_ref, 1.0, opt.chamfer_gain_max)
+        return torch.as_tensor(gain, dtype=self.dtype, device=self.device)
 
     def _neutral_scale(self, batch: Batch) -> torch.Tensor | None:
         """(B,) max(1, `neutral_reference_px` / each person's expected height in the image (f · stature /

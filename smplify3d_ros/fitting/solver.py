@@ -216,12 +216,19 @@ def _alignment_weights(confidence: torch.Tensor, align: str) -> torch.Tensor:
     return w / w.sum(-1, keepdim=True).clamp(min=torch.finfo(w.dtype).tiny)
 
 
+# The stages whose λ_3D follows the person's number of points (`FitProblem.lidar_gain`): those that fit the
+# pose and the final place; the scale stage and the initializer's refinement keep theirs.
+GAIN_STAGES = ("mesh", "image")
+
+
 def chamfer_block(body: Linearized, problem, stage, profile: OptimizerProfile, layout: Layout,
                   acc: Residuals) -> None:
     """L_3D's residuals: each point to its nearest visible vertex (and back, with the vertex weight)."""
     if not uses_chamfer(stage, problem):
         return
     weight = _w(stage.chamfer_weight, profile) * problem.use_lidar.to(body.vertices.dtype)  # (B,)
+    if problem.lidar_gain is not None and stage.name in GAIN_STAGES:
+        weight = weight * problem.lidar_gain
     vmask, points, pmask = problem.vertex_mask, problem.points, problem.point_mask
     visible = body.vertices
     has = (vmask.any(-1) & pmask.any(-1)).to(weight.dtype)

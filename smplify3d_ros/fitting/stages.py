@@ -115,7 +115,8 @@ def stage_loss(
         indices = body.body.nearest(problem, profile.chamfer_vertex_weight > 0) if isinstance(body, _Posed) else None
         chamfer = losses.chamfer_loss(out.vertices, problem.vertex_mask, problem.points, problem.point_mask,
                                       profile.chamfer_vertex_weight, indices)
-        loss = loss + _w(stage.chamfer_weight, profile) * chamfer * problem.use_lidar
+        gain = problem.lidar_gain if problem.lidar_gain is not None and stage.name in solver.GAIN_STAGES else 1.0
+        loss = loss + _w(stage.chamfer_weight, profile) * chamfer * problem.use_lidar * gain
     if solver.uses_free_space(stage, problem, profile) and problem.blocked is not None:
         loss = loss + _w(weights.free_space, profile) * problem.use_lidar * free_space.free_space_loss(
             out.vertices, problem.blocked, problem.lidar_origin, problem.point_mask)

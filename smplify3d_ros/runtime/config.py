@@ -289,6 +289,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "fitting.lidar_mismatch_m": (0, _INF), "fitting.profiles.*.lm_damping": (0, _INF),
     "fitting.profiles.*.pixel_reference_px": (0, _INF), "fitting.profiles.*.neutral_reference_px": (0, _INF),
     "fitting.profiles.*.neutral_robust_scale": (0, _INF),
+    "fitting.profiles.*.chamfer_points_ref": (0, _INF), "fitting.profiles.*.chamfer_gain_max": (1, _INF),
     "fitting.profiles.*.free_space_margin_m": (0, _INF), "fitting.init.refine_free_space": (0, _INF),
     "fitting.init.start_elbow_flexion_deg": (0, 150), "fitting.init.flexed_leg_hypotheses": (0, _INF),
     "fitting.init.flexed_leg_min_px": (0, _INF), "fitting.init.head_ankle_fraction": (0, 1),
