@@ -73,7 +73,7 @@ class FitProblem:
     use_lidar: torch.Tensor  # (B,) bool: enough points for the 3D term
     pixel_scale: torch.Tensor | None = None  # (B,) factor on each person's pixel residuals (None: 1)
     neutral_scale: torch.Tensor | None = None  # (B,) factor on weights.neutral per person (None: 1)
-    lidar_gain: torch.Tensor | None = None  # (B,) factor on λ_3D² of stages mesh and image per person (None: 1)
+    lidar_gain: torch.Tensor | None = None  # (B,) factor on λ_3D² per person where a stage takes it (None: 1)
     empty_subset: torch.Tensor | None = None  # (0,) int64: no vertex (one tensor, so model caches hold)
     keypoint_depth: torch.Tensor | None = None  # (B, 17) camera-z targets of limb keypoints (NaN: none)
     vertex_ids: torch.Tensor | None = None  # (B, n) each person's L_3D vertices as model vertex ids

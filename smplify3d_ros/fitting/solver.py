@@ -216,19 +216,13 @@ def _alignment_weights(confidence: torch.Tensor, align: str) -> torch.Tensor:
     return w / w.sum(-1, keepdim=True).clamp(min=torch.finfo(w.dtype).tiny)
 
 
-# The stages whose λ_3D follows the person's number of points (`FitProblem.lidar_gain`): those that fit the
-# pose and the final place; the scale stage and the initializer's refinement keep theirs.
-GAIN_STAGES = ("mesh", "image")
-
-
 def chamfer_block(body: Linearized, problem, stage, profile: OptimizerProfile, layout: Layout,
                   acc: Residuals) -> None:
     """L_3D's residuals: each point to its nearest visible vertex (and back, with the vertex weight)."""
     if not uses_chamfer(stage, problem):
         return
     weight = _w(stage.chamfer_weight, profile) * problem.use_lidar.to(body.vertices.dtype)  # (B,)
-    if problem.lidar_gain is not None and stage.name in GAIN_STAGES:
-        weight = weight * problem.lidar_gain
+    weight = weight * chamfer_gain(stage, problem)
     vmask, points, pmask = problem.vertex_mask, problem.points, problem.point_mask
     visible = body.vertices
     has = (vmask.any(-1) & pmask.any(-1)).to(weight.dtype)
@@ -443,6 +437,12 @@ def _w(weight: float, profile: OptimizerProfile) -> float:
 def uses_chamfer(stage, problem) -> bool:
     """Whether the stage has L_3D: a weight, and vertices to pose for it."""
     return stage.chamfer_weight > 0 and problem.vertex_index.shape[1] > 0
+
+
+def chamfer_gain(stage, problem) -> torch.Tensor | float:
+    """(B,) the factor on each person's λ_3D² in this stage (`FitProblem.lidar_gain` where the stage takes
+    it, `StageSpec.points_gain`), else 1: the loss and the residuals share it."""
+    return problem.lidar_gain if stage.points_gain and problem.lidar_gain is not None else 1.0
 
 
 def linearize_stage(model: BodyModel, state, problem, stage, layout: Layout, translated=None) -> Linearized:

@@ -32,6 +32,7 @@ class StageSpec:
     hold: bool = True  # with `priors`: L_θocc and the init-pose prior (False: nothing to hold, built-in init)
     keypoint_depth_weight: float = 0.0  # weight of the limb-depth targets (`FitProblem.keypoint_depth`)
     keypoint_depth_sigma: float = 0.1  # m, their Geman-McClure scale
+    points_gain: bool = False  # λ_3D² × each person's `FitProblem.lidar_gain` (the stages that fit pose and place)
 
 
 @dataclass
@@ -115,7 +116,7 @@ def stage_loss(
         indices = body.body.nearest(problem, profile.chamfer_vertex_weight > 0) if isinstance(body, _Posed) else None
         chamfer = losses.chamfer_loss(out.vertices, problem.vertex_mask, problem.points, problem.point_mask,
                                       profile.chamfer_vertex_weight, indices)
-        gain = problem.lidar_gain if problem.lidar_gain is not None and stage.name in solver.GAIN_STAGES else 1.0
+        gain = solver.chamfer_gain(stage, problem)
         loss = loss + _w(stage.chamfer_weight, profile) * chamfer * problem.use_lidar * gain
     if solver.uses_free_space(stage, problem, profile) and problem.blocked is not None:
         loss = loss + _w(weights.free_space, profile) * problem.use_lidar * free_space.free_space_loss(
@@ -277,8 +278,8 @@ def stage_plan(profile: OptimizerProfile) -> list[StageSpec]:
         StageSpec("scale", ("shape", "transl") if w.chamfer_scale > 0 else ("shape",), n1, align, w.sigma_px,
                   w.chamfer_scale, priors=False, shape_only_prior=True),
         StageSpec("mesh", ("pose", "shape", "root_orient") if profile.mesh_shape else ("pose", "root_orient"), n2,
-                  align, w.sigma_px, w.chamfer, priors=True),
-        StageSpec("image", ("transl",), n3, None, w.sigma_px_final, w.chamfer_final, priors=False),
+                  align, w.sigma_px, w.chamfer, priors=True, points_gain=True),
+        StageSpec("image", ("transl",), n3, None, w.sigma_px_final, w.chamfer_final, priors=False, points_gain=True),
     ]
 
 
