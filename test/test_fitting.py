@@ -240,25 +240,29 @@ def test_arms_the_image_shows_bent_are_not_pulled_towards_hanging(anny_model):
     pose = angles_to_pose(anny_model, hands_on_hips(np.random.default_rng(0)).angles_deg)
 
     def wrist_errors(scale: float) -> tuple[float, float]:
+        """Mean over three people (one person's fit also turns on where ICP happens to start it)."""
         overrides = {"fitting": {"profiles": {"robot": {"neutral_robust_scale": scale}}}}
         fitter = Fitter(load_config(overrides=overrides).fitting, anny_model)
-        sp = make_person(anny_model, np.random.default_rng(5), K, distance=4.0, yaw=0.3, n_points=60,
-                         point_noise=0.01, keypoint_noise_px=1.0, pose=pose)
-        sp.observation.init = None
-        fit = fitter.fit([sp.observation], K)[0]
-        truth = anny_model.posed([sp.truth])[0].keypoints3d
-        uv = project(torch.as_tensor(fit.keypoints3d, dtype=torch.float64)[None], torch.as_tensor(K))[0].numpy()
-        pixels = np.linalg.norm(uv[[9, 10]] - sp.observation.keypoints[[9, 10], :2], axis=1).mean()
-        centred = lambda kp: kp[[9, 10]] - kp[[11, 12]].mean(0)  # noqa: E731
-        return float(pixels), float(1000 * np.linalg.norm(centred(fit.keypoints3d) - centred(truth), axis=1).mean())
+        errors = []
+        for seed in (5, 6, 7):
+            sp = make_person(anny_model, np.random.default_rng(seed), K, distance=4.0, yaw=0.3, n_points=60,
+                             point_noise=0.01, keypoint_noise_px=1.0, pose=pose)
+            sp.observation.init = None
+            fit = fitter.fit([sp.observation], K)[0]
+            truth = anny_model.posed([sp.truth])[0].keypoints3d
+            uv = project(torch.as_tensor(fit.keypoints3d, dtype=torch.float64)[None], torch.as_tensor(K))[0].numpy()
+            pixels = np.linalg.norm(uv[[9, 10]] - sp.observation.keypoints[[9, 10], :2], axis=1).mean()
+            centred = lambda kp: kp[[9, 10]] - kp[[11, 12]].mean(0)  # noqa: E731
+            errors.append((pixels, 1000 * np.linalg.norm(centred(fit.keypoints3d) - centred(truth), axis=1).mean()))
+        return tuple(float(e) for e in np.mean(errors, axis=0))
 
     shipped = load_config().fitting.profiles["robot"].neutral_robust_scale
     assert shipped > 0
     robust, quadratic = wrist_errors(shipped), wrist_errors(0.0)
     print(f"wrists: robust {robust[0]:.1f} px, {robust[1]:.0f} mm; "
           f"quadratic {quadratic[0]:.1f} px, {quadratic[1]:.0f} mm")
-    assert robust[0] < 0.7 * quadratic[0], (robust, quadratic)  # measured: 3.3 against 6.7 px
-    assert robust[1] < 0.7 * quadratic[1], (robust, quadratic)  # 59 against 122 mm
+    assert robust[0] < 0.7 * quadratic[0], (robust, quadratic)  # measured: 2.6 against 7.1 px
+    assert robust[1] < 0.7 * quadratic[1], (robust, quadratic)  # 61 against 138 mm
 
 
 def _depth_shifted_person(model, shift_m, seed=23):

@@ -33,3 +33,33 @@ def test_icp_recovers_known_offset(anny_model, config, rng):
 def test_icp_empty_inputs_do_not_converge(config):
     result = align_mesh_to_points(np.zeros((0, 3)), np.ones((5, 3)), config.fitting.icp)
     assert not result.converged and np.allclose(result.T, np.eye(4))
+
+
+
+def test_icp_keeps_the_start_whose_points_lie_closest(anny_model, config, rng):
+    """Points on the legs and hips alone (a LiDAR whose field of view ends below the chest, a person close
+    to a VLP-16) can slide down the legs and stay inliers. Of the pre-alignment's two starts, the one whose
+    points then lie closest to the mesh must win, not the one with more inliers (or the first of equals):
+    here the mesh where it already is, not the bounding boxes' offset (half the body's missing height).
+    A kernel this wide makes every point an inlier from either start; the translation-only alignment is the
+    pre-alignment's result as it is."""
+    import dataclasses
+
+    import torch
+
+    from smplify3d_ros.fitting.init import upright_root_orient
+
+    dt = anny_model.anat_frames.dtype
+    with torch.no_grad():
+        out = anny_model(anny_model.mean_shape()[None], torch.zeros(1, 19, 3, dtype=dt),
+                         torch.as_tensor(upright_root_orient(0.3), dtype=dt)[None],
+                         torch.tensor([[0.2, 0.1, 7.0]], dtype=dt))
+    verts = out.vertices[0].double().numpy()
+    front = verts[verts[:, 2] < np.median(verts[:, 2])]  # the side the sensors see
+    pelvis_y = float(out.keypoints[0, 11:13, 1].mean())
+    legs = front[front[:, 1] > pelvis_y - 0.1]  # camera y points down: the hips and below
+    points = legs[rng.choice(len(legs), 350, replace=False)] + 0.01 * rng.standard_normal((350, 3))
+    wide = dataclasses.replace(config.fitting.icp, kernel=0.3, estimate_rotation=False)
+    result = align_mesh_to_points(front, points, wide)
+    moved = front @ result.T[:3, :3].T + result.T[:3, 3]
+    assert np.linalg.norm(moved - front, axis=1).mean() < 0.03
