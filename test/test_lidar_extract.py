@@ -427,6 +427,12 @@ def extracted(sim, k: int, config: ExtractionConfig):
     return extract_frame_people(sim.frame, config)[1].people[k]
 
 
+def keeps_own_points(taken: np.ndarray, own: np.ndarray) -> bool:
+    """Whether a person leaning on a post got their own points: nearly all taken points theirs, and most of
+    theirs (those touching the post go with it, `without_posts`: 64-84 % kept in the scenes here)."""
+    return len(taken) > 0 and np.isin(taken, own).mean() >= 0.9 and np.isin(own, taken).mean() >= 0.6
+
+
 def test_a_few_wall_points_beside_a_thin_part_do_not_outvote_the_body():
     """A simulated robot-path scene (seed 8 of the bench's tuning seeds, 2-8 m): a child running 7.2 m
     out with a wall 3.3 m behind. Beside the child's neck and thigh the core shows a few more wall points
@@ -466,8 +472,8 @@ def test_a_wall_patch_that_would_hide_the_torso_and_head_is_not_the_person():
         (CONFIG, True),
     ):
         taken = extracted(sim, leaning, config).indices
-        found = np.isin(own, taken).mean() >= 0.9
-        assert found == keeps_own, (config.hidden_weight, len(taken), int(np.isin(taken, own).sum()))
+        assert keeps_own_points(taken, own) == keeps_own, (config.hidden_weight, len(taken),
+                                                           int(np.isin(taken, own).sum()))
 
 
 @pytest.mark.parametrize(("seed", "person"), [(59, 0), (65, 2)])
@@ -480,7 +486,8 @@ def test_a_wall_going_on_past_both_sides_of_a_far_box_is_not_the_person(seed, pe
     taken."""
     sim, k, _ = robot_scene_person(seed, 3, person)
     depth = float(np.asarray(sim.people[person].keypoints3d)[[KP["left_hip"], KP["right_hip"]], 2].mean())
-    for config, on_the_wall in ((make_config(surface_min_points=10**6), True), (CONFIG, False)):
+    # without the surface test (and the post rule, which also takes the patch: the wall rises above the box)
+    for config, on_the_wall in ((make_config(surface_min_points=10**6, post_radius_m=0.0), True), (CONFIG, False)):
         points = extracted(sim, k, config).points
         behind = len(points) > 0 and float(np.median(points[:, 2])) > depth + 1.0
         assert behind == on_the_wall, (len(points), np.median(points[:, 2]) if len(points) else None, depth)
@@ -557,8 +564,9 @@ def test_a_cluster_far_nearer_than_the_persons_size_in_the_image_allows_is_not_t
     sim, k, own = robot_scene_person(29, 3, 1, distance_range=(8.0, 12.0))
     init = load_config().fitting.init
     assert len(own) >= 3
-    without = extract_frame_people(sim.frame, make_config(purity_min_room=1e-6))[1].people[k]
-    bounded = extract_frame_people(sim.frame, make_config(purity_min_room=1e-6), init=init)[1].people[k]
+    plain = make_config(purity_min_room=1e-6, post_radius_m=0.0)  # the box rises above the person's box too
+    without = extract_frame_people(sim.frame, plain)[1].people[k]
+    bounded = extract_frame_people(sim.frame, plain, init=init)[1].people[k]
     assert len(without.indices) >= 20 and not np.isin(without.indices, own).any()
     assert len(bounded.indices) >= 3 and np.isin(bounded.indices, own).all(), bounded.indices
 
@@ -601,7 +609,7 @@ def test_a_person_merged_with_the_post_they_lean_on_keeps_their_points():
     assert len(own) >= 50
     for config, keeps_own in ((make_config(core_isolation_points=0), False), (CONFIG, True)):
         taken = extracted(sim, k, config).indices
-        found = len(taken) >= 0.8 * len(own) and np.isin(own, taken).mean() > 0.8
+        found = keeps_own_points(taken, own)
         assert found == keeps_own, (config.core_isolation_points, len(taken), int(np.isin(taken, own).sum()))
 
 
@@ -614,8 +622,33 @@ def test_a_far_child_merged_with_the_post_they_lean_on_keeps_their_points():
     assert len(own) >= 8
     for config, keeps_own in ((make_config(core_isolation_points=20), False), (CONFIG, True)):
         taken = extracted(sim, k, config).indices
-        found = len(taken) >= 0.8 * len(own) and np.isin(own, taken).mean() > 0.8
+        found = keeps_own_points(taken, own)
         assert found == keeps_own, (config.core_isolation_points, len(taken), int(np.isin(taken, own).sum()))
+
+
+def test_the_post_a_person_leans_on_is_taken_from_their_points():
+    """A simulated robot-path scene (tuning seed 43 at 2-8 m, two people): a tall man leaning on a post
+    7.1 m out. The post is one cluster with him and fills his box beside and behind the body: 42 of his
+    96 points were the post's, and the fit, pulled onto it, stood 247 mm off (71 mm without them). The
+    post rises above his box, and what lies under those points, across, is the post's."""
+    sim, k, own = robot_scene_person(43, 2, 1, distance_range=(2.0, 8.0))
+    assert len(own) >= 50
+    off = extracted(sim, k, make_config(post_radius_m=0.0)).indices
+    on = extracted(sim, k, CONFIG).indices
+    assert np.isin(off, own).mean() < 0.6 and np.isin(own, off).mean() > 0.9
+    assert np.isin(on, own).all() and np.isin(own, on).mean() > 0.9
+
+
+def test_a_crouching_persons_own_back_above_their_box_is_no_post():
+    """Tuning seed 62 at 2-8 m: a person crouching 2.2 m out whose back and head rise a few pixels (3 % of
+    the box's height) above the padded keypoint box. Taken for a post (`post_min_rise` 0), 65 of their
+    332 points would go: the post must rise `post_min_rise` of the box above it."""
+    sim, k, own = robot_scene_person(62, 2, 0, distance_range=(2.0, 8.0))
+    assert len(own) >= 300
+    kept = extracted(sim, k, CONFIG).indices
+    without_rise = extracted(sim, k, make_config(post_min_rise=0.0)).indices
+    assert np.isin(own, kept).mean() > 0.9
+    assert len(without_rise) < len(kept) - 40
 
 
 def test_a_cluster_seen_past_the_body_is_not_its_main_cluster():
@@ -718,7 +751,7 @@ def test_a_less_confident_detector_is_read_as_a_confident_one():
              (make_config(core_isolation_points=20), True), (CONFIG, True))
     for config, keeps_own in cases:
         taken = extracted(sim, k, config).indices
-        found = len(taken) >= 0.8 * len(own) and np.isin(own, taken).mean() > 0.8
+        found = keeps_own_points(taken, own)
         assert found == keeps_own, (config.score_level, len(taken), int(np.isin(taken, own).sum()))
 
 

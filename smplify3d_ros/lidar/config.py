@@ -74,6 +74,9 @@ class ExtractionConfig:
     depth_tolerance_m: float  # depth spread of one body: farther is behind it, nearer may join it
     secondary_link_m: float  # extra clusters join a body across gaps up to this (clustering space)
     body_depth_window_m: float  # a person's points lie within this depth of its median depth
+    post_radius_m: float  # points this close across to their cluster's points above the bbox are a post's (0: off)
+    post_min_points: int  # ... when at least this many of that cluster's points rise above the bbox
+    post_min_rise: float  # ... the highest of them this fraction of the bbox's height above it
 
     def __post_init__(self) -> None:
         require(self.min_depth_m >= 0.0, "min_depth_m must be >= 0")
@@ -132,3 +135,6 @@ class ExtractionConfig:
         require(self.depth_tolerance_m >= 0.0, "depth_tolerance_m must be >= 0")
         require(self.secondary_link_m >= 0.0, "secondary_link_m must be >= 0")
         require(self.body_depth_window_m > 0.0, "body_depth_window_m must be > 0")
+        require(self.post_radius_m >= 0.0, "post_radius_m must be >= 0 (0: off)")
+        require(self.post_min_points >= 1, "post_min_points must be >= 1")
+        require(self.post_min_rise >= 0.0, "post_min_rise must be >= 0")

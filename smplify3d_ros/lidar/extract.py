@@ -7,6 +7,7 @@
   3. ground removal (`ground.fit_ground`): one plane per frame, shared by all people;
   4. clustering (`cluster.euclidean_clusters`) of the non-ground points inside any frustum or context;
   5. and 6. association (`associate.associate`): which clusters are whose, and one owner per point.
+  7. posts (`without_posts`): the points of a post a person leans on, which rises above them, are not theirs.
 
 Keypoints must be UNDISTORTED pixels (the caller undistorts detections with
 `camera.undistort_pixels`): points are projected with the ideal pinhole model of the same K
@@ -21,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from smplify3d_ros.camera import in_image, project_points
 from smplify3d_ros.lidar.associate import associate, in_bbox, person_skeleton, score_scale
@@ -62,6 +64,36 @@ def depth_range(n_people: int, expected_depth: np.ndarray | None, min_depth: np.
         out[:, 0], out[:, 1] = expected[:, 0] - expected[:, 1], expected[:, 0] + expected[:, 1]
     if min_depth is not None:
         out[:, 0] = np.fmax(out[:, 0], np.asarray(min_depth, np.float64).reshape(n_people))
+    return out
+
+
+def without_posts(points: np.ndarray, uv: np.ndarray, clusters: np.ndarray, owner: np.ndarray,
+                  skeletons: list, up: np.ndarray, config: ExtractionConfig) -> np.ndarray:
+    """`owner` (M,) with the points of a post a person leans on taken from them (-1). A post (a pole, a
+    pillar, a sign) is one cluster with the body touching it, and it rises above the person: its points
+    above the bbox, within the bbox's width and in one of the person's clusters (at least
+    `post_min_points`, the highest `post_min_rise` of the bbox's height above it), mark where it stands,
+    and the person's points within `post_radius_m` of them across (distances perpendicular to the
+    ground's `up`) are the post's, down to the ground. A body has little above its padded keypoint box:
+    the head or back of a person crouching 2.2 m out rose 3 % of the box above it, their own points, and
+    the whole torso went with a 0 rise. `post_radius_m` 0: off."""
+    if config.post_radius_m <= 0.0 or not (owner >= 0).any():
+        return owner
+    up = np.asarray(up, np.float64)
+    across = np.asarray(points, np.float64)
+    across = across - np.outer(across @ up, up)
+    out = owner.copy()
+    for k, skeleton in enumerate(skeletons):
+        mine = owner == k
+        if skeleton is None or not mine.any():
+            continue
+        x_min, y_min, x_max, y_max = skeleton.bbox
+        above = (np.isin(clusters, np.unique(clusters[mine])) & (uv[:, 1] < y_min)
+                 & (uv[:, 0] >= x_min) & (uv[:, 0] <= x_max))
+        if above.sum() < config.post_min_points or y_min - uv[above, 1].min() < config.post_min_rise * (y_max - y_min):
+            continue
+        dist, _ = cKDTree(across[above]).query(across[mine], k=1)
+        out[np.flatnonzero(mine)[dist < config.post_radius_m]] = -1
     return out
 
 
@@ -118,6 +150,7 @@ def extract_people(
     owner = associate(points[candidates], cand_uv, coords, clusters, skeletons, camera, config,
                       depth_range(len(keypoints), expected_depth, nearest),
                       refute_scale=score_scale(keypoints[..., 2], config))  # the detector's confidence level
+    owner = without_posts(points[candidates], cand_uv, clusters, owner, skeletons, ground.normal, config)
     labels[candidates] = owner.astype(np.int32)
 
     people = []

@@ -309,6 +309,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "lidar.mask_radius_m": (0, _INF), "lidar.max_person_extent_m": (0, _INF),
     "lidar.mask_area_samples": (2, _INF), "lidar.context_pad": (0, _INF), "lidar.min_isolation": (0, 1),
     "lidar.core_isolation_points": (0, _INF), "lidar.core_min_isolation": (0, 1),
+    "lidar.post_radius_m": (0, _INF), "lidar.post_min_points": (1, _INF), "lidar.post_min_rise": (0, _INF),
     "lidar.purity_min_room": (0, 1), "lidar.thin_refute_ratio": (0, _INF), "lidar.thin_refute_min_votes": (1, _INF),
     "lidar.surface_side_width": (0, _INF), "lidar.surface_ratio": (0, _INF), "lidar.surface_min_points": (1, _INF),
     "lidar.surface_one_side_ratio": (0, _INF),
