@@ -6,17 +6,20 @@ from scipy.spatial.transform import Rotation
 from smplify3d_ros.fitting.icp import align_mesh_to_points
 
 
-def test_icp_recovers_known_offset(anny_model, config, rng):
+def standing_body(model, yaw: float, transl: list[float]):
+    """The model's mean body standing at `transl` (camera frame) turned by `yaw`: its forward output."""
     import torch
 
     from smplify3d_ros.fitting.init import upright_root_orient
 
-    dt = anny_model.anat_frames.dtype
+    dt = model.anat_frames.dtype
     with torch.no_grad():
-        out = anny_model(anny_model.mean_shape()[None], torch.zeros(1, 19, 3, dtype=dt),
-                         torch.as_tensor(upright_root_orient(0.4), dtype=dt)[None],
-                         torch.tensor([[0.3, 0.2, 6.0]], dtype=dt))
-    verts = out.vertices[0].double().numpy()
+        return model(model.mean_shape()[None], torch.zeros(1, 19, 3, dtype=dt),
+                     torch.as_tensor(upright_root_orient(yaw), dtype=dt)[None], torch.tensor([transl], dtype=dt))
+
+
+def test_icp_recovers_known_offset(anny_model, config, rng):
+    verts = standing_body(anny_model, 0.4, [0.3, 0.2, 6.0]).vertices[0].double().numpy()
     points = verts[rng.choice(len(verts), 400, replace=False)] + 0.005 * rng.standard_normal((400, 3))
     # the mesh is off by a rigid motion; ICP must bring it back onto the points
     R = Rotation.from_euler("y", 8, degrees=True).as_matrix()
@@ -35,7 +38,6 @@ def test_icp_empty_inputs_do_not_converge(config):
     assert not result.converged and np.allclose(result.T, np.eye(4))
 
 
-
 def test_icp_keeps_the_start_whose_points_lie_closest(anny_model, config, rng):
     """Points on the legs and hips alone (a LiDAR whose field of view ends below the chest, a person close
     to a VLP-16) can slide down the legs and stay inliers. Of the pre-alignment's two starts, the one whose
@@ -45,15 +47,7 @@ def test_icp_keeps_the_start_whose_points_lie_closest(anny_model, config, rng):
     pre-alignment's result as it is."""
     import dataclasses
 
-    import torch
-
-    from smplify3d_ros.fitting.init import upright_root_orient
-
-    dt = anny_model.anat_frames.dtype
-    with torch.no_grad():
-        out = anny_model(anny_model.mean_shape()[None], torch.zeros(1, 19, 3, dtype=dt),
-                         torch.as_tensor(upright_root_orient(0.3), dtype=dt)[None],
-                         torch.tensor([[0.2, 0.1, 7.0]], dtype=dt))
+    out = standing_body(anny_model, 0.3, [0.2, 0.1, 7.0])
     verts = out.vertices[0].double().numpy()
     front = verts[verts[:, 2] < np.median(verts[:, 2])]  # the side the sensors see
     pelvis_y = float(out.keypoints[0, 11:13, 1].mean())
