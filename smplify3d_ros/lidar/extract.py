@@ -67,22 +67,20 @@ def depth_range(n_people: int, expected_depth: np.ndarray | None, min_depth: np.
     return out
 
 
-def without_posts(points: np.ndarray, uv: np.ndarray, clusters: np.ndarray, owner: np.ndarray,
-                  skeletons: list[Skeleton | None], up: np.ndarray, config: ExtractionConfig) -> np.ndarray:
+def without_posts(horizontal: np.ndarray, uv: np.ndarray, clusters: np.ndarray, owner: np.ndarray,
+                  skeletons: list[Skeleton | None], config: ExtractionConfig) -> np.ndarray:
     """`owner` (M,) with the points of a post a person leans on taken from them (-1). A post (a pole, a
     pillar, a sign) is one cluster with the body touching it, and it rises above the person: its points
     above the bbox, within the bbox's width and in one of the person's clusters (at least
     `post_min_points`, the highest `post_min_rise` of the bbox's height above it), mark where it stands,
-    and the person's points within `post_radius_m` of them across (distances perpendicular to the
-    ground's `up`) are the post's, down to the ground. A body has little above its padded keypoint box:
+    and the person's points within `post_radius_m` of them across (in the ground plane) are the post's,
+    down to the ground. A body has little above its padded keypoint box:
     the back of a person crouching 2.2 m out rose 3 % of the box's height above it, and without the rise
-    65 of their 332 points would have gone with it. `post_radius_m` 0: off. points: (M, 3) camera-frame
-    candidates; uv: (M, 2) their pixels; clusters: (M,) their cluster labels."""
+    65 of their 332 points would have gone with it. `post_radius_m` 0: off. horizontal: (M, 2) the
+    candidates' coordinates in the ground plane (the clustering's, `cluster.scaled_coordinates`); uv:
+    (M, 2) their pixels; clusters: (M,) their cluster labels."""
     if config.post_radius_m <= 0.0 or not (owner >= 0).any():
         return owner
-    up = np.asarray(up, np.float64)
-    across = np.asarray(points, np.float64)
-    across = across - np.outer(across @ up, up)
     out = owner.copy()
     for k, skeleton in enumerate(skeletons):
         mine = owner == k
@@ -93,7 +91,7 @@ def without_posts(points: np.ndarray, uv: np.ndarray, clusters: np.ndarray, owne
                  & (uv[:, 0] >= x_min) & (uv[:, 0] <= x_max))
         if above.sum() < config.post_min_points or y_min - uv[above, 1].min() < config.post_min_rise * (y_max - y_min):
             continue
-        dist, _ = cKDTree(across[above]).query(across[mine], k=1)
+        dist, _ = cKDTree(horizontal[above]).query(horizontal[mine], k=1)
         out[np.flatnonzero(mine)[dist < config.post_radius_m]] = -1
     return out
 
@@ -151,7 +149,7 @@ def extract_people(
     owner = associate(points[candidates], cand_uv, coords, clusters, skeletons, camera, config,
                       depth_range(len(keypoints), expected_depth, nearest),
                       refute_scale=score_scale(keypoints[..., 2], config))  # the detector's confidence level
-    owner = without_posts(points[candidates], cand_uv, clusters, owner, skeletons, ground.normal, config)
+    owner = without_posts(coords[:, :2], cand_uv, clusters, owner, skeletons, config)
     labels[candidates] = owner.astype(np.int32)
 
     people = []
