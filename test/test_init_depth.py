@@ -13,6 +13,7 @@ from smplify3d_ros.fitting.init import (
     few_points_depth,
     ground_depth,
     nearest_depth,
+    pelvis_position,
     points_too_near,
     upright_root_orient,
 )
@@ -22,7 +23,7 @@ from smplify3d_ros.keypoints import KP
 from smplify3d_ros.types import FLAG_IMAGE_ONLY, FLAG_POINTS_TOO_NEAR, BodyParams, PersonObservation
 
 
-def _person_on_ground(model, distance=8.0):
+def _seen_on_ground(model, distance=8.0):
     """An adult of the model's mean shape standing `distance` m out, every keypoint confident (0.5 px
     noise), their points on the front of the body, and the ground plane under their feet (level camera:
     up is −y, so the plane n·p + d = 0 has n = (0, −1, 0) and d = the ground's y)."""
@@ -41,6 +42,12 @@ def _person_on_ground(model, distance=8.0):
     ground = np.array([0.0, -1.0, 0.0, float(ankles_y.max()) + load_config().fitting.init.ankle_height])
     bbox = np.array([*kp[:, :2].min(0), *kp[:, :2].max(0)])
     obs = PersonObservation(0, kp, bbox, points, ground=ground)
+    return obs, body, K
+
+
+def _person_on_ground(model, distance=8.0):
+    """`_seen_on_ground`'s observation, the true root joint's position and the intrinsics."""
+    obs, body, K = _seen_on_ground(model, distance)
     return obs, body.joints[0], K
 
 
@@ -57,6 +64,33 @@ def test_a_raised_foot_does_not_push_an_unseen_person_away(anny_model):
     raised_obs = dataclasses.replace(obs, keypoints=raised)
     assert ground_depth(raised_obs, K, cfg) / true_z - 1 > 0.3  # ground contact alone is far off
     assert abs(estimate_depth(raised_obs, K, cfg, use_points=False) / true_z - 1) < 0.2
+
+
+def test_a_person_whose_legs_are_hidden_starts_a_torso_below_the_shoulders(anny_model):
+    """Hips, hands and legs hidden (behind a box): the keypoint box ends at the elbows. The start's pelvis
+    goes a torso below the shoulders, with two shoulders seen or one, not into that box, which puts it
+    at chest height (crowd tuning seed 4 person 3: 39 cm too high, fitted 351 mm off)."""
+    cfg = load_config().fitting.init
+    obs, body, K = _seen_on_ground(anny_model, distance=7.0)
+    hips = body.keypoints3d[[KP["left_hip"], KP["right_hip"]]].mean(axis=0)
+    kp = obs.keypoints.copy()
+    hidden = [KP[n] for n in ("left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
+                              "left_wrist", "right_wrist")]
+    kp[hidden, 2] = 0.1
+    seen = kp[:, 2] >= cfg.keypoint_conf
+    pad = 0.12 * np.ptp(kp[seen, :2], axis=0).max()
+    half = dataclasses.replace(obs, keypoints=kp, bbox=np.array([*(kp[seen, :2].min(0) - pad),
+                                                                  *(kp[seen, :2].max(0) + pad)]))
+    depth = float(hips[2])
+    up = obs.ground[:3]
+    assert np.linalg.norm(pelvis_position(half, K, cfg, depth, up) - hips) < 0.1
+    one = half.keypoints.copy()
+    one[KP["right_shoulder"], 2] = 0.0
+    assert np.linalg.norm(pelvis_position(dataclasses.replace(half, keypoints=one), K, cfg, depth, up) - hips) < 0.15
+    # the box's centre, where a start without shoulders goes, is a chest's height off
+    none = one.copy()
+    none[KP["left_shoulder"], 2] = 0.0
+    assert np.linalg.norm(pelvis_position(dataclasses.replace(half, keypoints=none), K, cfg, depth, up) - hips) > 0.25
 
 
 def test_arms_raised_above_the_head_do_not_bring_the_nearest_depth_closer(anny_model):

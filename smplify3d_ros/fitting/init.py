@@ -9,7 +9,8 @@ position and heading are those of the real camera:
    depth as good as the ground plane at any range; and from the pixel height of the torso and of the
    bounding box and the focal length, for an assumed body size: the nearest of these (`estimate_depth`).
    Points far nearer than all of these put the person are an occluder's (`points_too_near`). The
-   pelvis is then back-projected through the hip midpoint.
+   pelvis is then back-projected through the hip midpoint, or placed a torso below the shoulders when
+   the hips are not seen (`pelvis_position`).
 2. Upright root orientation (up: the ground plane's normal when known, else camera up = −y) turned by
    each heading hypothesis of `fitting.heading` (2D left/right order and foreshortening, the LiDAR's
    torso direction, never the face alone).
@@ -189,15 +190,24 @@ def points_too_near(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> b
     return len(obs.points) > 0 and bool(float(np.median(obs.points[:, 2])) < nearest_depth(obs, K, cfg))
 
 
-def pelvis_pixel(obs: PersonObservation, cfg: InitConfig) -> np.ndarray:
+def pelvis_position(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, depth: float,
+                    up: np.ndarray | None = None) -> np.ndarray:
+    """Where the upright start's hip midpoint goes (camera frame, m) at `depth`: on the ray through the
+    hips when both are confident; else `torso_height` below the confident shoulders at that depth, along
+    the world's `up` (default: camera up), across the image at their midpoint (one shoulder alone: the
+    box's centre); else on the ray through the box's centre. (A point 60 % of the way from the shoulders
+    to the bottom of the box, the rule before, put a person whose legs something hides as high as their
+    elbows: the keypoint box ends where the confident keypoints do.)"""
     kp = obs.keypoints
+    centre = np.array([0.5 * (obs.bbox[0] + obs.bbox[2]), 0.5 * (obs.bbox[1] + obs.bbox[3])])
     if _confident(kp, ("left_hip", "right_hip"), cfg.keypoint_conf):
-        return _mid(kp, "left_hip", "right_hip")
-    if _confident(kp, ("left_shoulder", "right_shoulder"), cfg.keypoint_conf):
-        # pelvis about 60% of the way from the shoulders to the bottom of the box
-        top = _mid(kp, "left_shoulder", "right_shoulder")
-        return np.array([top[0], top[1] + 0.6 * (obs.bbox[3] - top[1])])
-    return np.array([0.5 * (obs.bbox[0] + obs.bbox[2]), 0.5 * (obs.bbox[1] + obs.bbox[3])])
+        return _ray(K, _mid(kp, "left_hip", "right_hip")) * depth
+    shoulders = [KP[n] for n in ("left_shoulder", "right_shoulder") if kp[KP[n], 2] >= cfg.keypoint_conf]
+    if not shoulders:
+        return _ray(K, centre) * depth
+    uv = kp[shoulders, :2].mean(axis=0) if len(shoulders) == 2 else np.array([centre[0], kp[shoulders[0], 1]])
+    up = CAMERA_UP if up is None else np.asarray(up, np.float64) / np.linalg.norm(up)
+    return _ray(K, uv) * depth - cfg.torso_height * up
 
 
 def upright_root_orient(yaw: float, up: np.ndarray | None = None) -> np.ndarray:
@@ -224,8 +234,7 @@ def builtin_hypotheses(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, u
     before the limb refinement; the best guess first. `use_points`: the points inform the heading;
     `depth_points`: they give the depth (fewer suffice for that, `fitting.min_points_depth`)."""
     depth = estimate_depth(obs, K, cfg, use_points or depth_points)
-    u, v = pelvis_pixel(obs, cfg)
-    pelvis = np.array([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth, depth])
-    heading = estimate_heading(obs.keypoints, K, pelvis, obs.points if use_points else obs.points[:0], cfg)
     up = None if obs.ground is None else np.asarray(obs.ground[:3], np.float64)
+    pelvis = pelvis_position(obs, K, cfg, depth, up)
+    heading = estimate_heading(obs.keypoints, K, pelvis, obs.points if use_points else obs.points[:0], cfg)
     return [(upright_root_orient(yaw, up), pelvis) for yaw in heading.hypotheses]
