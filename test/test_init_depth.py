@@ -210,3 +210,48 @@ def test_a_few_points_the_image_agrees_with_give_a_half_hidden_persons_depth(ann
     assert few_points_depth(hidden, K, off.init) is None
     fit = Fitter(off, anny_model).fit([hidden], K)[0]
     assert fit.joints[0, 2] / true_z - 1 > 0.3, (fit.joints[0], true_z)
+
+
+def test_a_crouching_person_keeps_their_own_points():
+    """A simulated crowd (outdoor_crowd seed 40, five people; the camera 0.4 m up): person 4 crouches 7.3 m
+    out, and every size cue of a crouching body reads about twice as far (ground contact through an
+    ankle 19.5 px below the horizon 16.4 m, the torso 14.6 m, the head-to-ankle span 17.3 m). Half the
+    nearest, 8.2 m, took their 453 points at 6.6-7.3 m for an occluder's: none were extracted and the
+    person was fitted from the image 5.5 m too far. Their keypoints show a thigh far shorter down the
+    image than its shin, so no bound is set, and the points are theirs again."""
+    from smplify3d_ros.frame_fitter import FrameFitter, extract_frame_people
+    from smplify3d_ros.sim.config import load_sim_config
+    from smplify3d_ros.sim.world import simulate_scenario
+
+    config = load_config()
+    sim = simulate_scenario(40, load_sim_config(), "outdoor_crowd", sensor="livox", n_people=5,
+                            distance_range=(6.0, 15.0))
+    frame, _ = FrameFitter(config, fitter=object()).select_people(sim.frame)  # selection needs no fitter
+    k = list(frame.person_ids).index(4)
+    own = np.flatnonzero(sim.point_labels == 4)
+    assert len(own) > 400
+    for ratio, keeps_own in ((0.0, False), (config.fitting.init.crouch_thigh_ratio, True)):
+        init = dataclasses.replace(config.fitting.init, crouch_thigh_ratio=ratio)
+        _, result = extract_frame_people(frame, config.lidar, None, init)
+        taken = result.people[k].indices
+        assert (len(taken) > 0.8 * len(own) and np.isin(taken, own).mean() > 0.95) == keeps_own, (ratio, len(taken))
+
+
+def test_only_a_leg_whose_thigh_the_image_shortens_reads_as_crouched(anny_model):
+    """A standing person's thighs are about as long down the image as their shins: the nearest-depth
+    bound stays; a crouching leg (the knee raised to just below the hip) lifts it; an unsure hip, knee or
+    ankle says nothing."""
+    from smplify3d_ros.fitting.init import crouched
+
+    cfg = load_config().fitting.init
+    obs, _, K = _person_on_ground(anny_model, distance=7.0)
+    assert not crouched(obs.keypoints, cfg.keypoint_conf, cfg.crouch_thigh_ratio)
+    assert np.isfinite(nearest_depth(obs, K, cfg))
+    kp = obs.keypoints.copy()
+    hip, knee, ankle = (KP[f"left_{j}"] for j in ("hip", "knee", "ankle"))
+    kp[knee, 1] = kp[hip, 1] + 0.2 * (kp[ankle, 1] - kp[hip, 1])
+    assert crouched(kp, cfg.keypoint_conf, cfg.crouch_thigh_ratio)
+    assert np.isnan(nearest_depth(dataclasses.replace(obs, keypoints=kp), K, cfg))
+    unsure = kp.copy()
+    unsure[knee, 2] = 0.1
+    assert not crouched(unsure, cfg.keypoint_conf, cfg.crouch_thigh_ratio)

@@ -72,6 +72,7 @@ class InitConfig:
     lidar_surface_offset: float
     points_min_depth_ratio: float
     points_min_depth_cues: int
+    crouch_thigh_ratio: float
     few_points_max_ratio: float
     keypoint_conf: float
     torso_box_pad: float
@@ -117,6 +118,7 @@ class InitConfig:
             require(getattr(self, name) >= 0, f"{name} must be >= 0")
         require(0.0 <= self.points_min_depth_ratio < 1.0, "points_min_depth_ratio must be in [0, 1)")
         require(self.points_min_depth_cues >= 1, "points_min_depth_cues must be >= 1")
+        require(self.crouch_thigh_ratio >= 0.0, "crouch_thigh_ratio must be >= 0 (0: off)")
         require(self.few_points_max_ratio >= 0.0, "few_points_max_ratio must be >= 0")
         require(self.refine_iterations >= 0, "refine_iterations must be >= 0")
         require(0 <= self.start_elbow_flexion_deg <= 150, "start_elbow_flexion_deg must be in [0, 150]")

@@ -176,12 +176,26 @@ def nearest_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> flo
     nearest whole-body `size_depths`, since no foreshortening shrinks every length of a body that much,
     when at least `points_min_depth_cues` of them are known (NaN: no bound): one alone can be off more
     than twofold (ground contact through an ankle guessed behind an occluder, or lifted off the ground;
-    the torso of a person bent over). The extraction passes over clusters nearer than this, the fitter
-    drops points nearer (`points_too_near`)."""
+    the torso of a person bent over). None for a person whose keypoints show a crouch (`crouched`, by
+    `crouch_thigh_ratio`): all their cues read about twice as far at once. The extraction passes over
+    clusters nearer than this, the fitter drops points nearer (`points_too_near`)."""
     depths = size_depths(obs, K, cfg, whole_body=True)
     if cfg.points_min_depth_ratio <= 0.0 or len(depths) < cfg.points_min_depth_cues:
         return float("nan")
+    if cfg.crouch_thigh_ratio > 0 and crouched(obs.keypoints, cfg.keypoint_conf, cfg.crouch_thigh_ratio):
+        return float("nan")  # every size cue of a crouching body reads about twice as far
     return cfg.points_min_depth_ratio * min(depths)
+
+
+def crouched(kp: np.ndarray, conf: float, ratio: float) -> bool:
+    """Whether a leg the keypoints show (hip, knee and ankle at `conf`) has a thigh shorter in the image
+    than `ratio` x its shin, down the image: a thigh turned towards the camera, a crouching person's."""
+    for side in ("left", "right"):
+        hip, knee, ankle = (kp[KP[f"{side}_{j}"]] for j in ("hip", "knee", "ankle"))
+        if min(hip[2], knee[2], ankle[2]) >= conf and ankle[1] - knee[1] > 1.0:
+            if knee[1] - hip[1] < ratio * (ankle[1] - knee[1]):
+                return True
+    return False
 
 
 def points_too_near(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> bool:

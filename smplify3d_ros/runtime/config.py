@@ -272,6 +272,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "fitting.init.shoulder_width": (0, _INF), "fitting.init.hip_width": (0, _INF),
     "fitting.init.lidar_surface_offset": (0, _INF),
     "fitting.init.points_min_depth_ratio": (0, 1), "fitting.init.points_min_depth_cues": (1, _INF),
+    "fitting.init.crouch_thigh_ratio": (0, _INF),
     "fitting.init.few_points_max_ratio": (0, _INF),
     "fitting.init.keypoint_conf": (0, 1),
     "fitting.init.refine_iterations": (0, _INF), "fitting.init.ankle_height": (0, _INF),
