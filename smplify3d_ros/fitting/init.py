@@ -8,7 +8,8 @@ position and heading are those of the real camera:
    through the lower ankle meets the plane (raised by the ankle's height) where the person stands, a
    depth as good as the ground plane at any range; and from the pixel height of the torso and of the
    bounding box and the focal length, for an assumed body size: the nearest of these (`estimate_depth`).
-   Points far nearer than all of these put the person are an occluder's (`points_too_near`). The
+   Points far nearer than all of these put the person are an occluder's (`points_too_near`), unless the
+   keypoints show a crouch, which makes every one of these cues read about twice as far. The
    pelvis is then back-projected through the hip midpoint, or placed a torso below the shoulders when
    the hips are not seen (`pelvis_position`).
 2. Upright root orientation (up: the ground plane's normal when known, else camera up = −y) turned by
@@ -176,9 +177,9 @@ def nearest_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> flo
     nearest whole-body `size_depths`, since no foreshortening shrinks every length of a body that much,
     when at least `points_min_depth_cues` of them are known (NaN: no bound): one alone can be off more
     than twofold (ground contact through an ankle guessed behind an occluder, or lifted off the ground;
-    the torso of a person bent over). None for a person whose keypoints show a crouch (`crouched`, by
-    `crouch_thigh_ratio`): all their cues read about twice as far at once. The extraction passes over
-    clusters nearer than this, the fitter drops points nearer (`points_too_near`)."""
+    the torso of a person bent over). No bound either for a person whose keypoints show a crouch
+    (`crouched`, by `crouch_thigh_ratio`): all their cues read about twice as far at once. The
+    extraction passes over clusters nearer than this, the fitter drops points nearer (`points_too_near`)."""
     depths = size_depths(obs, K, cfg, whole_body=True)
     if cfg.points_min_depth_ratio <= 0.0 or len(depths) < cfg.points_min_depth_cues:
         return float("nan")
