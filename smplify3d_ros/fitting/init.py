@@ -180,11 +180,12 @@ def nearest_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> flo
     the torso of a person bent over). No bound either for a person whose keypoints show a crouch
     (`crouched`, by `crouch_thigh_ratio`): all their cues read about twice as far at once. The
     extraction passes over clusters nearer than this, the fitter drops points nearer (`points_too_near`)."""
+    if cfg.points_min_depth_ratio <= 0.0 or (
+            cfg.crouch_thigh_ratio > 0 and crouched(obs.keypoints, cfg.keypoint_conf, cfg.crouch_thigh_ratio)):
+        return float("nan")  # off, or a crouching body, every size cue of which reads about twice as far
     depths = size_depths(obs, K, cfg, whole_body=True)
-    if cfg.points_min_depth_ratio <= 0.0 or len(depths) < cfg.points_min_depth_cues:
+    if len(depths) < cfg.points_min_depth_cues:
         return float("nan")
-    if cfg.crouch_thigh_ratio > 0 and crouched(obs.keypoints, cfg.keypoint_conf, cfg.crouch_thigh_ratio):
-        return float("nan")  # every size cue of a crouching body reads about twice as far
     return cfg.points_min_depth_ratio * min(depths)
 
 
