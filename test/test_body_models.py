@@ -100,6 +100,48 @@ def test_priors_penalise_out_of_range_and_hyperextension(anny_model):
     assert anny_model.shape_prior(shape + 0.7).item() > anny_model.shape_prior(shape + 0.3).item()
 
 
+def _stature(model, shape):
+    return float(np.ptp(_run_shape(model, shape).vertices[0, :, 1].numpy()))
+
+
+def _run_shape(model, shape):
+    dt = model.anat_frames.dtype
+    with torch.no_grad():
+        return model(shape[None].to(dt), torch.zeros(1, len(BODY_JOINTS), 3, dtype=dt),
+                     torch.as_tensor(upright_root_orient(0.0), dtype=dt)[None],
+                     torch.tensor([[0.0, 0.0, 5.0]], dtype=dt))
+
+
+def test_anny_prior_mean_is_its_shipped_population_at_the_reference_stature(anny_model):
+    """The default prior mean (`fitting.body.anny_shape_mean`) is the mean of the population Anny ships
+    (its WHO-calibrated sampler, ages 0-90) for every phenotype but height, which gives the stature of
+    Anny's middle body (every phenotype 0.5, the former mean: a teenager's proportions)."""
+    from anny.shape_distribution import SimpleShapeDistribution
+
+    torch.manual_seed(0)
+    _, samples = SimpleShapeDistribution(anny_model.anny).sample(20000)
+    mean = anny_model.mean_shape()
+    for k, name in enumerate(anny_model.shape_names):
+        if name != "height":
+            assert abs(float(mean[k]) - float(samples[name].mean())) < 0.02, name
+    assert anny_model.shape_prior(mean[None]).item() == 0.0
+    assert anny_model.shape_prior(anny_model.reference_shape()[None]).item() > 0.5
+    assert abs(_stature(anny_model, mean) - _stature(anny_model, anny_model.reference_shape())) < 0.01
+
+
+def test_anny_anatomy_does_not_follow_the_prior_mean(anny_model, config):
+    """The pose priors' anatomical frames come from the reference body whatever the shape prior's mean."""
+    import dataclasses
+
+    from smplify3d_ros.body import load_body_model
+
+    other = load_body_model("anny", dataclasses.replace(config.fitting.body, anny_shape_mean=[0.5] * 6))
+    assert torch.allclose(other.mean_shape(), other.reference_shape())
+    assert not torch.allclose(anny_model.mean_shape(), other.mean_shape())
+    assert torch.equal(other.anat_frames, anny_model.anat_frames)
+    assert torch.equal(other.anat_ranges, anny_model.anat_ranges)
+
+
 # -- SMPL through a made-up file ------------------------------------------------------------------
 V_SMALL = 300
 
@@ -130,7 +172,9 @@ def _made_up_smpl(rng, n_verts=V_SMALL):
 def _smpl_config(tmp_path, model_path, regressor_path="", gmm_path=""):
     from smplify3d_ros.fitting.config import BodyConfig
 
-    return BodyConfig("smpl", str(model_path), str(regressor_path), str(gmm_path), 10, 0.25, 64, 100.0)
+    return BodyConfig("smpl", str(model_path), str(regressor_path), str(gmm_path), smpl_num_betas=10,
+                      anny_shape_sigma=0.25, anny_shape_mean=[0.5] * 6, anny_keypoint_support=64,
+                      shape_bound_weight=100.0)
 
 
 def test_smpl_npz_with_regressor_and_gmm(tmp_path, rng):

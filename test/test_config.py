@@ -92,6 +92,12 @@ def test_min_points_is_the_fitters():
         load_config(overrides={"lidar": {"min_points": 20}})
 
 
+@pytest.mark.parametrize("mean", [[0.5] * 5, [0.5] * 5 + [1.2], [0.5] * 7])
+def test_anny_shape_mean_must_be_six_phenotypes_in_range(mean):
+    with pytest.raises(ConfigError, match="anny_shape_mean must be 6 phenotypes in"):
+        load_config(overrides={"fitting": {"body": {"anny_shape_mean": mean}}})
+
+
 def test_ouster_profile_fits_from_the_image_below_its_min_points(anny_model):
     """A person with 17 points: LiDAR term with the VLP-16 profile (min 15), image-only with Ouster (20)."""
     from smplify3d_ros.eval.synthetic import default_intrinsics, make_person

@@ -94,7 +94,8 @@ def _build(name: str, config, device: str) -> BodyModel:
     if name == "anny":
         from smplify3d_ros.body.anny_model import AnnyBody
 
-        model = AnnyBody(config.anny_shape_sigma, config.shape_bound_weight, config.anny_keypoint_support)
+        model = AnnyBody(config.anny_shape_sigma, config.shape_bound_weight, config.anny_keypoint_support,
+                         config.anny_shape_mean)
     elif name == "smpl":
         from smplify3d_ros.body.smpl_model import SmplBody
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -53,6 +54,7 @@ C_ANNY_FROM_CANONICAL = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1
 
 # Phenotypes are kept this far inside [0, 1] when mapped to unconstrained coordinates (logit(1e-4) = -9.2).
 _PHENOTYPE_EPS = 1e-4
+REFERENCE_PHENOTYPE = 0.5  # Anny's middle body: every phenotype halfway (`AnnyBody.reference_shape`)
 _CACHED_SUBSETS = 4  # vertex sets (and their rest shapes) kept by `AnnyBody._subset` / `_rest`
 # Every vertex of up to this many bodies goes through the subset path (5.0 vs 8.2 ms for one body, 9.3 vs
 # 11.8 for three, one thread); Anny's own forward, whose skinning scales better, for more (14.5 vs 14.8 at 4)
@@ -124,7 +126,10 @@ class AnnyBody(BodyModel):
     name = "anny"
     vertices_per_row = True
 
-    def __init__(self, shape_sigma: float, shape_bound_weight: float, keypoint_support: int) -> None:
+    def __init__(self, shape_sigma: float, shape_bound_weight: float, keypoint_support: int,
+                 shape_mean: Sequence[float] | None = None) -> None:
+        """`shape_mean`: the phenotypes the shape prior pulls towards and every built-in fit starts from
+        (None: the reference body's, 0.5 each; `fitting.body.anny_shape_mean`)."""
         super().__init__()
         import anny  # heavy import (warp), kept local
 
@@ -140,6 +145,11 @@ class AnnyBody(BodyModel):
         self.register_buffer("_blendshapes_by_vertex", model.blendshapes.transpose(0, 1).contiguous(), persistent=False)
         self.shape_names = tuple(model.phenotype_labels)
         self.shape_sigma = shape_sigma
+        mean = [REFERENCE_PHENOTYPE] * len(self.shape_names) if shape_mean is None else [float(v) for v in shape_mean]
+        if len(mean) != len(self.shape_names):
+            raise ValueError(f"Anny has {len(self.shape_names)} phenotypes ({', '.join(self.shape_names)}); "
+                             f"the shape mean gives {len(mean)}")
+        self.register_buffer("_shape_mean", torch.tensor(mean, dtype=dtype), persistent=False)
         self.shape_bound_weight = shape_bound_weight
         labels = list(model.bone_labels)
         self.bone_index = [labels.index(JOINT_TO_BONE[j]) for j in BODY_JOINTS]
@@ -152,7 +162,7 @@ class AnnyBody(BodyModel):
         self.faces = torch.as_tensor(model.faces, dtype=torch.int64)
         self.part_of_face = self._face_parts(model, labels)
         with torch.no_grad():
-            rest = self._posed_canonical(self.mean_shape()[None], torch.zeros(1, len(BODY_JOINTS), 3))
+            rest = self._posed_canonical(self.reference_shape()[None], torch.zeros(1, len(BODY_JOINTS), 3))
         self._init_anatomy(rest[1][0].double().numpy())
 
     # -- construction helpers ----------------------------------------------------------------------
@@ -240,15 +250,20 @@ class AnnyBody(BodyModel):
 
     # -- model -------------------------------------------------------------------------------------
     def mean_shape(self) -> torch.Tensor:
-        return torch.full((len(self.shape_names),), 0.5, dtype=self.kp_weights.dtype,
+        return self._shape_mean.to(self.kp_weights.dtype)
+
+    def reference_shape(self) -> torch.Tensor:
+        """Anny's middle body, every phenotype 0.5: its rest pose defines the anatomical frames and ranges
+        (of the pose priors), whatever the shape prior's mean."""
+        return torch.full((len(self.shape_names),), REFERENCE_PHENOTYPE, dtype=self.kp_weights.dtype,
                           device=self.kp_weights.device)
 
     def shape_prior(self, shape: torch.Tensor) -> torch.Tensor:
-        """Phenotypes near the population mean (0.5, spread `shape_sigma`) and inside [0, 1]."""
+        """Phenotypes near the prior's mean (`mean_shape`, spread `shape_sigma`) and inside [0, 1]."""
         return (self.shape_prior_residuals(shape) ** 2).sum(-1)
 
     def shape_prior_residuals(self, shape: torch.Tensor) -> torch.Tensor:
-        near_mean = (shape - 0.5) / self.shape_sigma
+        near_mean = (shape - self._shape_mean.to(shape.dtype)) / self.shape_sigma
         outside = (torch.relu(-shape) + torch.relu(shape - 1.0)) * self.shape_bound_weight**0.5
         return torch.cat([near_mean, outside], -1)
 

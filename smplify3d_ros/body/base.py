@@ -105,7 +105,13 @@ class BodyModel(torch.nn.Module):
         return self.anat_ranges
 
     def mean_shape(self) -> torch.Tensor:
+        """The shape prior's mean, from which built-in fits start."""
         raise NotImplementedError
+
+    def reference_shape(self) -> torch.Tensor:
+        """A fixed body of the model, independent of the prior's settings (the simulator's HMR shrinks
+        its shapes towards it); by default the mean."""
+        return self.mean_shape()
 
     def rotation_center(self, shape: torch.Tensor, transl: torch.Tensor) -> torch.Tensor:
         """(B, 3) camera-frame point that `root_orient` rotates the body about (Anny: the pelvis,

@@ -16,12 +16,15 @@ class BodyConfig:
     smpl_gmm_path: str
     smpl_num_betas: int
     anny_shape_sigma: float
+    anny_shape_mean: list[float]
     anny_keypoint_support: int
     shape_bound_weight: float
 
     def __post_init__(self) -> None:
         require(self.smpl_num_betas > 0, "smpl_num_betas must be > 0")
         require(self.anny_shape_sigma > 0, "anny_shape_sigma must be > 0")
+        require(len(self.anny_shape_mean) == 6 and all(0.0 <= float(v) <= 1.0 for v in self.anny_shape_mean),
+                "anny_shape_mean must be 6 phenotypes in [0, 1] (gender, age, muscle, weight, height, proportions)")
         require(self.anny_keypoint_support >= 0, "anny_keypoint_support must be >= 0 (0 = every vertex)")
         require(self.shape_bound_weight >= 0, "shape_bound_weight must be >= 0")
 

@@ -126,7 +126,7 @@ def simulate_hmr(
     """
     if not people:
         return []
-    mean = model.mean_shape().detach().cpu().double().numpy()
+    mean = model.reference_shape().detach().cpu().double().numpy()  # the fitter's prior mean may differ
     shapes = np.stack([predicted_shape(rng, p.shape, mean, cfg) for p, _ in people])
     sizes_pred = _rest_sizes(model, shapes)
     dtype = torch.get_default_dtype()
