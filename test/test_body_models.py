@@ -19,12 +19,13 @@ from smplify3d_ros.fitting.init import upright_root_orient
 from smplify3d_ros.keypoints import KP, PART_NAMES
 
 
-def _run(model, pose=None, root=None, transl=(0.0, 0.0, 5.0)):
+def _run(model, pose=None, root=None, transl=(0.0, 0.0, 5.0), shape=None):
     dt = model.anat_frames.dtype
     pose = torch.zeros(1, len(BODY_JOINTS), 3, dtype=dt) if pose is None else pose
     root = torch.as_tensor(upright_root_orient(0.0) if root is None else root, dtype=dt)[None]
+    shape = model.mean_shape() if shape is None else shape
     with torch.no_grad():
-        return model(model.mean_shape()[None], pose, root, torch.tensor([transl], dtype=dt))
+        return model(shape[None].to(dt), pose, root, torch.tensor([transl], dtype=dt))
 
 
 def test_anny_upright_facing_camera(anny_model):
@@ -101,15 +102,7 @@ def test_priors_penalise_out_of_range_and_hyperextension(anny_model):
 
 
 def _stature(model, shape):
-    return float(np.ptp(_run_shape(model, shape).vertices[0, :, 1].numpy()))
-
-
-def _run_shape(model, shape):
-    dt = model.anat_frames.dtype
-    with torch.no_grad():
-        return model(shape[None].to(dt), torch.zeros(1, len(BODY_JOINTS), 3, dtype=dt),
-                     torch.as_tensor(upright_root_orient(0.0), dtype=dt)[None],
-                     torch.tensor([[0.0, 0.0, 5.0]], dtype=dt))
+    return float(np.ptp(_run(model, shape=shape).vertices[0, :, 1].numpy()))
 
 
 def test_anny_prior_mean_is_its_shipped_population_at_the_reference_stature(anny_model):

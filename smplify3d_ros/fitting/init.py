@@ -215,9 +215,9 @@ def pelvis_position(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, dept
     to the bottom of the box, the rule before, put a person whose legs something hides as high as their
     elbows: the keypoint box ends where the confident keypoints do.)"""
     kp = obs.keypoints
-    centre = np.array([0.5 * (obs.bbox[0] + obs.bbox[2]), 0.5 * (obs.bbox[1] + obs.bbox[3])])
     if _confident(kp, ("left_hip", "right_hip"), cfg.keypoint_conf):
         return _ray(K, _mid(kp, "left_hip", "right_hip")) * depth
+    centre = np.array([0.5 * (obs.bbox[0] + obs.bbox[2]), 0.5 * (obs.bbox[1] + obs.bbox[3])])
     shoulders = [KP[n] for n in ("left_shoulder", "right_shoulder") if kp[KP[n], 2] >= cfg.keypoint_conf]
     if not shoulders:
         return _ray(K, centre) * depth
