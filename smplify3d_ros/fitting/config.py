@@ -109,6 +109,8 @@ class InitConfig:
     head_ankle_fraction: float
     start_hip_flexion_deg: float
     start_knee_flexion_deg: float
+    bent_trunk_hypotheses: int
+    start_trunk_pitch_deg: float
 
     def __post_init__(self) -> None:
         require(0.0 < self.head_ankle_fraction <= 1.0, "head_ankle_fraction must be in (0, 1]")
@@ -129,6 +131,8 @@ class InitConfig:
         require(self.flexed_leg_min_px >= 0, "flexed_leg_min_px must be >= 0 (0: only with a thigh seen)")
         require(0 <= self.start_hip_flexion_deg <= 125, "start_hip_flexion_deg must be in [0, 125]")
         require(0 <= self.start_knee_flexion_deg <= 150, "start_knee_flexion_deg must be in [0, 150]")
+        require(self.bent_trunk_hypotheses >= 0, "bent_trunk_hypotheses must be >= 0 (0: none)")
+        require(0 <= self.start_trunk_pitch_deg <= 90, "start_trunk_pitch_deg must be in [0, 90]")
         require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")
         require(self.hypothesis_iterations >= 0, "hypothesis_iterations must be >= 0 (at most refine_iterations run)")
         require(self.heading_hypotheses >= 1, "heading_hypotheses must be >= 1")

@@ -136,6 +136,9 @@ class Fitter:
         self._start_pose = self._builtin_start_pose()
         self._flexed_start_pose = self._builtin_start_pose(self.config.init.start_hip_flexion_deg,
                                                            self.config.init.start_knee_flexion_deg)
+        # bent over at the hips: the pelvis pitched forward (`initializer.pitched_root_orient`) and the hips
+        # flexed as much, so that the legs stay upright
+        self._bent_start_pose = self._builtin_start_pose(self.config.init.start_trunk_pitch_deg)
         self._keypoints_only = torch.zeros(1, dtype=torch.long, device=self.device)
         self.part_of_face_np = self.model.part_of_face.cpu().numpy()
         self._around = free_space.vertex_faces(self.faces_np, int(self.faces_np.max()) + 1)
@@ -221,7 +224,8 @@ class Fitter:
         """Step 1: an external estimate of this model when a person has one, else the built-in one's
         hypotheses (the first stands in until `_refine_builtin` picks one): each heading hypothesis
         standing, then the first `init.flexed_leg_hypotheses` of them again with flexed legs where the
-        image shows a thigh, or the knees and the points can tell (`initializer.flexed_legs_tried`), then
+        image shows a thigh, or the knees and the points can tell (`initializer.flexed_legs_tried`), the
+        first `init.bent_trunk_hypotheses` bent over at the hips by `init.start_trunk_pitch_deg`, then
         the person's own `hypothesis` (a track's warm start), if any."""
         cfg = self.config
         mean_shape = self.model.mean_shape().cpu().double().numpy()
@@ -244,6 +248,10 @@ class Fitter:
                                                             float(hypotheses[0][1][2])):
                 starts += [(self._flexed_start_pose, root, pelvis)
                            for root, pelvis in hypotheses[: cfg.init.flexed_leg_hypotheses]]
+            if batch.use_lidar[i]:  # from the image alone, a trunk bent towards the camera is a short one
+                pitch = math.radians(cfg.init.start_trunk_pitch_deg)
+                starts += [(self._bent_start_pose, initializer.pitched_root_orient(root, pitch), pelvis)
+                           for root, pelvis in hypotheses[: cfg.init.bent_trunk_hypotheses]]
             for pose, root, pelvis in starts:
                 batch.hypotheses[i].append(BodyParams(self.model.name, mean_shape.copy(), pose.copy(),
                                                       root.copy(), pelvis.copy()))

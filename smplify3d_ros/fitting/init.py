@@ -18,8 +18,8 @@ position and heading are those of the real camera:
 3. Limbs: a short fit of pose, orientation and position to the keypoints, the points and the depth of
    the points that hit each limb (`fitting.limbs`), with the anatomical priors only, from every
    hypothesis, standing and, for the first headings, with flexed legs where a thigh is seen, or the
-   knees and the points can tell (`flexed_legs_tried`); the full objective picks the hypothesis
-   (`fitter.Fitter._refine_builtin`).
+   knees and the points can tell (`flexed_legs_tried`), and bent over at the hips
+   (`pitched_root_orient`); the full objective picks the hypothesis (`fitter.Fitter._refine_builtin`).
 """
 
 from __future__ import annotations
@@ -237,6 +237,12 @@ def upright_root_orient(yaw: float, up: np.ndarray | None = None) -> np.ndarray:
         tilt, _ = Rotation.align_vectors(up[None], CAMERA_UP[None])
         R = tilt.as_matrix() @ R
     return Rotation.from_matrix(R).as_rotvec()
+
+
+def pitched_root_orient(root_orient: np.ndarray, pitch: float) -> np.ndarray:
+    """`root_orient` (axis-angle) with the body pitched forward by `pitch` (rad) about its own left axis
+    (canonical x): the upper body leans towards where the person faces, the pelvis with it."""
+    return (Rotation.from_rotvec(root_orient) * Rotation.from_rotvec([pitch, 0.0, 0.0])).as_rotvec()
 
 
 def _frame(up: np.ndarray, forward: np.ndarray) -> np.ndarray:
