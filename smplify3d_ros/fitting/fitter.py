@@ -68,7 +68,6 @@ class Batch:
     K: torch.Tensor  # (3, 3) intrinsics of the undistorted image
     lidar_origin: np.ndarray  # (3,) the LiDAR's position in the camera frame (back-face culling)
     options: FitOptions
-    rng: np.random.Generator  # chamfer subsampling
     keypoints: torch.Tensor  # (B, 17, 2) px
     confidence: torch.Tensor  # (B, 17)
     use_lidar: np.ndarray  # (B,) bool: enough points for L_3D
@@ -94,7 +93,7 @@ class Batch:
         index = torch.as_tensor(rows, device=self.keypoints.device)
         return Batch(
             people=[self.people[i] for i in rows], K=self.K, lidar_origin=self.lidar_origin,
-            options=self.options, rng=self.rng, keypoints=self.keypoints[index],
+            options=self.options, keypoints=self.keypoints[index],
             confidence=self.confidence[index], use_lidar=self.use_lidar[rows],
             occluded_image=[self.occluded_image[i] for i in rows],
             occluded_lidar=[self.occluded_lidar[i] for i in rows], occluded_joints=self.occluded_joints[rows],
@@ -114,10 +113,13 @@ def _pad_rows(rows: list[np.ndarray], width: int, fill) -> tuple[np.ndarray, np.
     return out, mask
 
 
-def _subsample(n: int, limit: int, rng: np.random.Generator) -> np.ndarray:
+def _subsample(n: int, limit: int, seed: int) -> np.ndarray:
+    """`limit` of `n` indices (all when `limit` is 0 or at least `n`), sorted: drawn by a generator of
+    `seed`, `n` and `limit` alone, so that a person's subsets, and their fit, do not depend on who else
+    is fitted in the same batch (other people, other hypotheses) nor in what order."""
     if limit <= 0 or n <= limit:
         return np.arange(n)
-    return np.sort(rng.choice(n, size=limit, replace=False))
+    return np.sort(np.random.default_rng((seed, n, limit)).choice(n, size=limit, replace=False))
 
 
 class Fitter:
@@ -209,7 +211,6 @@ class Fitter:
             K=torch.as_tensor(K, dtype=self.dtype, device=self.device),
             lidar_origin=np.zeros(3) if lidar_origin is None else np.asarray(lidar_origin, np.float64),
             options=options,
-            rng=np.random.default_rng(cfg.seed),
             keypoints=self._tensor([p.keypoints[:, :2] for p in people]),
             confidence=self._tensor([p.keypoints[:, 2] for p in people]),
             use_lidar=use_lidar,
@@ -525,8 +526,8 @@ class Fitter:
         vertex_rows, point_rows = [], []
         for i, p in enumerate(batch.people):
             index = np.flatnonzero(masks[i])
-            index = index[_subsample(len(index), max_vertices, batch.rng)]
-            points = p.points[_subsample(len(p.points), opt.chamfer_max_points, batch.rng)]
+            index = index[_subsample(len(index), max_vertices, self.config.seed)]
+            points = p.points[_subsample(len(p.points), opt.chamfer_max_points, self.config.seed)]
             vertex_rows.append(index if batch.use_lidar[i] else index[:0])
             point_rows.append(points if batch.use_lidar[i] else points[:0])
         # the vertices any person's L_3D uses are the only ones posed per step
