@@ -33,22 +33,24 @@ def test_the_start_pose_is_the_anatomical_neutral_with_the_elbows_flexed(anny_mo
     np.testing.assert_allclose(np.delete(angles[elbows], 0, axis=1), 0.0, atol=1e-6)
 
 
-def _facing_person(model, rng, flexed: tuple[str, ...], degrees: float, transl: tuple[float, float, float]):
-    """A person facing the camera at `transl` with the joints `flexed` by `degrees` from the anatomical
-    neutral: perfect keypoints, 300 points over the surface facing the sensor."""
+def _facing_person(model, rng, flexed: tuple[str, ...], degrees: float, transl: tuple[float, float, float],
+                   root: np.ndarray | None = None, n_points: int = 300):
+    """A person at `transl` with the joints `flexed` by `degrees` from the anatomical neutral, facing the
+    camera unless `root` turns them: perfect keypoints, `n_points` points over the surface facing the
+    sensor."""
     angles = torch.zeros(1, len(model.joint_names), 3, dtype=torch.float64)
     for name in flexed:
         angles[0, model.joint_names.index(name), 0] = np.deg2rad(degrees)
     pose = model.anatomical_to_pose(angles, from_neutral=True)[0].numpy()
-    truth = BodyParams(model.name, np.full(len(model.shape_names), 0.5), pose, upright_root_orient(0.0),
-                       np.array(transl))
+    root = upright_root_orient(0.0) if root is None else root
+    truth = BodyParams(model.name, np.full(len(model.shape_names), 0.5), pose, root, np.array(transl))
     body = model.posed([truth])[0]
     K = default_intrinsics()
     uv = project(torch.as_tensor(body.keypoints3d)[None], torch.as_tensor(K))[0].numpy()
     keypoints = np.concatenate([uv, np.ones((17, 1))], axis=1)
     faces = model.faces.cpu().numpy()
     front = front_facing(body.vertices, faces, np.zeros(3), 0.0) & (model.part_of_face.cpu().numpy() >= 0)
-    points = sample_surface(body.vertices, faces[front], 300, 0.005, rng).astype(np.float32)
+    points = sample_surface(body.vertices, faces[front], n_points, 0.005, rng).astype(np.float32)
     return PersonObservation(0, keypoints, np.array([*uv.min(0), *uv.max(0)]), points), K, body
 
 
@@ -107,7 +109,7 @@ def test_thighs_pointing_at_the_camera_are_found_from_the_flexed_leg_start(anny_
         fit = _legs_fitter(anny_model, hypotheses).fit([obs], K)[0]
         error[hypotheses] = float(np.linalg.norm(fit.keypoints3d[knees] - body.keypoints3d[knees], axis=1).mean())
     print(f"knee error: standing starts only {1000 * error[0]:.0f} mm, with flexed-leg starts {1000 * error[2]:.0f} mm")
-    assert error[2] < 0.08 and error[0] > 2 * error[2], error  # measured: 363 mm against 23 mm
+    assert error[2] < 0.08 and error[0] > 2 * error[2], error  # measured: 370 mm against 38 mm
 
 
 def _starts(fitter: Fitter, obs, K) -> int:
@@ -178,20 +180,8 @@ def _bent_person(model, rng, degrees: float = 60.0):
     """A person 5 m in front of the camera, side-on to it, bent over at the hips by `degrees`, 60 points on
     the surface facing the sensor (a VLP-16's at about that range): from a standing start the solver folds
     the spine or leans the whole body instead."""
-    angles = torch.zeros(1, len(model.joint_names), 3, dtype=torch.float64)
-    for name in HIPS:
-        angles[0, model.joint_names.index(name), 0] = np.deg2rad(degrees)
-    pose = model.anatomical_to_pose(angles, from_neutral=True)[0].numpy()
     root = pitched_root_orient(upright_root_orient(np.pi / 2), np.deg2rad(degrees))
-    truth = BodyParams(model.name, np.full(len(model.shape_names), 0.5), pose, root, np.array([0.0, 0.5, 5.0]))
-    body = model.posed([truth])[0]
-    K = default_intrinsics()
-    uv = project(torch.as_tensor(body.keypoints3d)[None], torch.as_tensor(K))[0].numpy()
-    keypoints = np.concatenate([uv, np.ones((17, 1))], axis=1)
-    faces = model.faces.cpu().numpy()
-    front = front_facing(body.vertices, faces, np.zeros(3), 0.0) & (model.part_of_face.cpu().numpy() >= 0)
-    points = sample_surface(body.vertices, faces[front], 60, 0.005, rng).astype(np.float32)
-    return PersonObservation(0, keypoints, np.array([*uv.min(0), *uv.max(0)]), points), K, body
+    return _facing_person(model, rng, HIPS, degrees, (0.0, 0.5, 5.0), root=root, n_points=60)
 
 
 def test_a_person_bent_over_is_found_from_the_bent_start(anny_model, rng):
@@ -201,7 +191,7 @@ def test_a_person_bent_over_is_found_from_the_bent_start(anny_model, rng):
         fit = _trunk_fitter(anny_model, hypotheses).fit([obs], K)[0]
         error[hypotheses] = float(np.linalg.norm(fit.joints - body.joints, axis=1).mean())
     print(f"MPJPE: without the bent start {1000 * error[0]:.0f} mm, with it {1000 * error[1]:.0f} mm")
-    assert error[1] < 0.06 and error[0] > 2 * error[1], error  # measured: 184 mm against 31 mm
+    assert error[1] < 0.06 and error[0] > 2 * error[1], error  # measured: 181 mm against 28 mm
 
 
 def test_no_bent_start_from_the_image_alone(anny_model, rng):
