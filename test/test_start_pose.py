@@ -17,9 +17,13 @@ from smplify3d_ros.types import BodyParams, PersonObservation
 ELBOWS = ("left_elbow", "right_elbow")
 
 
+def _init_fitter(model, **init) -> Fitter:
+    """A fitter with these `fitting.init` settings over the defaults."""
+    return Fitter(load_config(overrides={"fitting": {"init": init}}).fitting, model)
+
+
 def _fitter(model, flexion_deg: float) -> Fitter:
-    config = load_config(overrides={"fitting": {"init": {"start_elbow_flexion_deg": flexion_deg}}})
-    return Fitter(config.fitting, model)
+    return _init_fitter(model, start_elbow_flexion_deg=flexion_deg)
 
 
 @pytest.mark.parametrize("flexion_deg", [0.0, 90.0])
@@ -77,8 +81,7 @@ LEGS = ("left_hip", "right_hip", "left_knee", "right_knee")
 
 def _legs_fitter(model, hypotheses: int, **init) -> Fitter:
     init = {"flexed_leg_hypotheses": hypotheses, "bent_trunk_hypotheses": 0, **init}  # the leg starts alone
-    config = load_config(overrides={"fitting": {"init": init}})
-    return Fitter(config.fitting, model)
+    return _init_fitter(model, **init)
 
 
 def test_the_flexed_leg_start_flexes_hips_and_knees_only(anny_model):
@@ -151,8 +154,7 @@ HIPS = ("left_hip", "right_hip")
 
 
 def _trunk_fitter(model, hypotheses: int) -> Fitter:
-    config = load_config(overrides={"fitting": {"init": {"bent_trunk_hypotheses": hypotheses}}})
-    return Fitter(config.fitting, model)
+    return _init_fitter(model, bent_trunk_hypotheses=hypotheses)
 
 
 def test_the_bent_start_pitches_the_pelvis_forward_and_keeps_the_legs_upright(anny_model):

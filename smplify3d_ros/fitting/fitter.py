@@ -226,8 +226,8 @@ class Fitter:
         hypotheses (the first stands in until `_refine_builtin` picks one): each heading hypothesis
         standing, then the first `init.flexed_leg_hypotheses` of them again with flexed legs where the
         image shows a thigh, or the knees and the points can tell (`initializer.flexed_legs_tried`), the
-        first `init.bent_trunk_hypotheses` bent over at the hips by `init.start_trunk_pitch_deg`, then
-        the person's own `hypothesis` (a track's warm start), if any."""
+        first `init.bent_trunk_hypotheses` bent over at the hips by `init.start_trunk_pitch_deg` for a
+        person with LiDAR points, then the person's own `hypothesis` (a track's warm start), if any."""
         cfg = self.config
         mean_shape = self.model.mean_shape().cpu().double().numpy()
         K = batch.K.cpu().double().numpy()

@@ -18,8 +18,8 @@ position and heading are those of the real camera:
 3. Limbs: a short fit of pose, orientation and position to the keypoints, the points and the depth of
    the points that hit each limb (`fitting.limbs`), with the anatomical priors only, from every
    hypothesis, standing and, for the first headings, with flexed legs where a thigh is seen, or the
-   knees and the points can tell (`flexed_legs_tried`), and bent over at the hips
-   (`pitched_root_orient`); the full objective picks the hypothesis (`fitter.Fitter._refine_builtin`).
+   knees and the points can tell (`flexed_legs_tried`), and, for people with points, bent over at the
+   hips (`pitched_root_orient`); the full objective picks the hypothesis (`fitter.Fitter._refine_builtin`).
 """
 
 from __future__ import annotations
