@@ -319,6 +319,26 @@ def test_no_ground_points():
     assert p >= 0.95 and r >= 0.85, (p, r)
 
 
+def test_the_floor_beside_and_behind_the_robot_gives_the_ground_when_none_is_seen_ahead():
+    """Where the camera sees no floor (a camera mounted high over a 16-ring LiDAR, whose lowest ring
+    meets the floor 5 m out from 1.35 m up; the floor ahead hidden), the floor around the robot gives the
+    plane: not the height band, whose assumed camera height is a guess (here 1 m, wrong by 0.6 m: the
+    band would take the person's legs for floor)."""
+    behind = Scene().person(4.0, 0.0)
+    behind.shapes.append((GROUND, lambda d: np.where(d[:, 0] < 0.0, hit_plane_z(d, -LIDAR_HEIGHT), np.inf)))
+    points_world, truth = behind.scan(vlp16_rays((-180.0, 180.0)))
+    points_cam = transform_points(points_world, t_cam_lidar())
+    ahead = points_cam[:, 2] > CONFIG.min_depth_m
+    assert not np.any(truth[ahead] == GROUND)  # no floor point in front of the camera
+    config = make_config(ground_fallback_camera_height_m=1.0)
+    result = extract_people(points_cam, behind.keypoints(), CAMERA, config)
+    assert_well_formed(result, len(points_cam), 1)
+    assert result.ground.fitted
+    assert abs(result.ground.offset - (LIDAR_HEIGHT + CAMERA_IN_LIDAR[2])) < 0.03, result.ground.offset
+    p, r = precision_recall(result, truth, 0, above_floor(points_world))
+    assert p >= 0.95 and r >= 0.9, (p, r)
+
+
 def test_empty_scan():
     scene = Scene().person(5.0, 0.0)
     result = extract_people(np.zeros((0, 3), np.float32), scene.keypoints(), CAMERA, CONFIG)

@@ -133,8 +133,12 @@ def extract_people(
         if skeleton is not None:
             frustum |= in_bbox(uv, skeleton.context)
 
-    # 3. Ground removal, with a plane fitted to everything the camera sees.
+    # 3. Ground removal, with a plane fitted to everything the camera sees; when that shows too little
+    # floor (walls ahead, a camera mounted high: a VLP-16 1.35 m up first meets the floor 5 m out), to
+    # the whole scan, whose floor beside and behind the robot is the same plane on flat ground.
     ground = fit_ground(points[visible], config)
+    if not ground.fitted:
+        ground = fit_ground(points, config)
     if frustum.any():
         height = ground.height(points[visible[frustum]])
         keep = (height > config.ground_clearance_m) & (height <= config.max_height_m)
