@@ -86,7 +86,7 @@ def test_default_profile_is_the_base():
 
 def test_min_points_is_the_fitters():
     """`lidar.min_points` set only a flag nothing read; the fitter's `fitting.min_points` is the one setting."""
-    assert load_config("ouster64").fitting.min_points == 20
+    assert load_config("ouster64").fitting.min_points == base_values()["fitting"]["min_points"]
     assert "min_points" not in base_values()["lidar"]
     with pytest.raises(ConfigError, match="unknown key 'lidar.min_points'"):
         load_config(overrides={"lidar": {"min_points": 20}})
@@ -98,20 +98,22 @@ def test_anny_shape_mean_must_be_six_phenotypes_in_range(mean):
         load_config(overrides={"fitting": {"body": {"anny_shape_mean": mean}}})
 
 
-def test_ouster_profile_fits_from_the_image_below_its_min_points(anny_model):
-    """A person with 17 points: LiDAR term with the VLP-16 profile (min 15), image-only with Ouster (20)."""
+def test_people_below_min_points_are_fitted_from_the_image(anny_model):
+    """`fitting.min_points` (the Ouster-64 profile keeps the base's): one point fewer, image-only."""
     from smplify3d_ros.eval.synthetic import default_intrinsics, make_person
     from smplify3d_ros.fitting.fitter import Fitter
     from smplify3d_ros.fitting.options import FitOptions
 
     K = default_intrinsics()
-    person = make_person(anny_model, np.random.default_rng(2), K, distance=5.0, yaw=0.2, n_points=17,
-                         point_noise=0.01, keypoint_noise_px=2.0)
+    config = load_config("ouster64").fitting
+    fitter = Fitter(config, anny_model)
     flags = {}
-    for profile in ("jackal_vlp16", "ouster64"):
-        fitter = Fitter(load_config(profile).fitting, anny_model)
-        flags[profile] = fitter.fit([person.observation], K, options=FitOptions(optimize=False))[0].flags
-    assert "image_only" not in flags["jackal_vlp16"] and "image_only" in flags["ouster64"]
+    for n in (config.min_points - 1, config.min_points):
+        person = make_person(anny_model, np.random.default_rng(2), K, distance=5.0, yaw=0.2, n_points=n,
+                             point_noise=0.01, keypoint_noise_px=2.0)
+        assert len(person.observation.points) == n
+        flags[n] = fitter.fit([person.observation], K, options=FitOptions(optimize=False))[0].flags
+    assert "image_only" in flags[config.min_points - 1] and "image_only" not in flags[config.min_points]
 
 
 def test_fit_frame_keeps_a_bounded_cache_keyed_by_value(monkeypatch):
