@@ -8,7 +8,8 @@ its inliers. A plane's support is its inliers minus the points below it, since n
 lies under the ground: a 16-ring sensor puts hundreds of points on a slanted line across a wall, and a
 tilted plane through them would otherwise pass when the floor is out of view. When no plane has
 `ground_min_support` support, a height band relative to a level camera at
-`ground_fallback_camera_height_m` stands in for the plane.
+`ground_fallback_camera_height_m` stands in for the plane. (The extraction fits the points the camera
+sees first, then, if they hold no plane, the whole scan: `extract.extract_people`, step 3.)
 """
 
 from __future__ import annotations
