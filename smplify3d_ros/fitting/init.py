@@ -78,7 +78,10 @@ def size_depths(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, whole_bo
     seen (else a hidden body part makes it a guess, not a bound). The box also holds arms raised above
     the head: a person reaching up 5.4 m out had a box 25 % taller than their head-to-ankle span, which
     let an object 2.55 m in front of them pass for them (Ouster-64 tuning seed 39; docs/benchmarks.md,
-    "Depth without the LiDAR, and points that are not the person's")."""
+    "Depth without the LiDAR, and points that are not the person's"). Nor is ground contact through a
+    lone ankle a bound on its own: it may be the foot in the air, which reads twice as far or more from a
+    low camera (a walker 2.2 m out read 4.5 m and lost their 223 points as an occluder's); beside another
+    cue the nearest of them still is (docs/benchmarks.md, "A lone ankle")."""
     depths = [d for d in (ground_depth(obs, K, cfg),) if d is not None]
     kp = obs.keypoints
     f = 0.5 * (K[0, 0] + K[1, 1])
@@ -94,6 +97,9 @@ def size_depths(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, whole_bo
     if head and ankles:
         span = float(kp[ankles, 1].max() - kp[head, 1].min())
         depths.append(float(f * cfg.head_ankle_fraction * cfg.body_height / max(span, 1.0)))
+    lone_ankle = sum(kp[KP[n], 2] >= cfg.limb_keypoint_conf for n in ("left_ankle", "right_ankle")) < 2
+    if len(depths) == 1 and lone_ankle and ground_depth(obs, K, cfg) is not None:
+        return []  # ground contact through the one ankle seen, alone: it may be the foot in the air
     return depths
 
 
