@@ -119,7 +119,8 @@ def extract_frame_people(frame: Frame, config: ExtractionConfig, expected_depth:
         expected_depth = np.concatenate([np.asarray(expected_depth, np.float64).reshape(n, 2),
                                          np.full((len(bystanders), 2), np.nan)])
     nearest = None if init is None else partial(_nearest_depths, everyone, pinhole.K, init)
-    result = extract_people(points_cam, everyone, pinhole, config, expected_depth, nearest)
+    up = np.asarray(frame.T_cam_lidar, np.float64)[:3, 2] if config.ground_up == "lidar" else None
+    result = extract_people(points_cam, everyone, pinhole, config, expected_depth, nearest, up)
     labels = np.where(result.labels >= n, -1, result.labels).astype(np.int32)
     return undistorted, replace(result, people=result.people[:n], labels=labels)
 

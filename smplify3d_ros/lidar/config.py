@@ -28,7 +28,8 @@ class ExtractionConfig:
     ground_ransac_sample: int  # at most this many points score each hypothesis
     ground_ransac_seed: int  # seed of the hypothesis sampler (results are deterministic)
     ground_inlier_m: float  # distance to the plane under which a point is a ground inlier
-    ground_max_tilt_deg: float  # largest angle between the ground normal and camera up (-y)
+    ground_up: str  # expected up: "lidar" (the LiDAR's z axis, a level LiDAR) or "camera" (the camera's -y)
+    ground_max_tilt_deg: float  # largest angle between the ground normal and the expected up
     ground_camera_height_min_m: float  # the camera is at least this high above a valid ground plane
     ground_camera_height_max_m: float  # ... and at most this high
     ground_min_support: int  # less support (inliers - points below): no ground visible, use the height band
@@ -89,6 +90,7 @@ class ExtractionConfig:
         require(self.ground_ransac_sample >= 3, "ground_ransac_sample must be >= 3")
         require(self.ground_ransac_seed >= 0, "ground_ransac_seed must be >= 0")
         require(self.ground_inlier_m > 0.0, "ground_inlier_m must be > 0")
+        require(self.ground_up in ("lidar", "camera"), f"ground_up must be 'lidar' or 'camera', not {self.ground_up!r}")
         require(0.0 < self.ground_max_tilt_deg < 90.0, "ground_max_tilt_deg must be in (0, 90)")
         require(
             0.0 <= self.ground_camera_height_min_m < self.ground_camera_height_max_m,
