@@ -224,3 +224,30 @@ def test_sequences_report_the_warm_fit_time_per_person(tmp_path, capsys):
     assert np.isnan(rows[("single_frame", "track_ids")]["warm_ms_per_person"])
     assert "warm fit ms / person (median)" in capsys.readouterr().out
     assert cli.run(parse(["--sequences", "walk", "--frame-step", "0", "--no-progress"])) == 2
+
+
+def test_sequences_take_the_sensor_aliases_and_refuse_unknown_names_in_one_line(monkeypatch, capsys, tmp_path):
+    """`--sequences --sensor ouster64` is the Ouster-64 with its own params profile, as the scenes' runs
+    take it (it stopped with an internal error); an unknown sensor or sequence scenario is one line and
+    exit status 2, before anything is simulated."""
+    from smplify3d_ros.eval import sequences
+
+    seen = {}
+
+    def simulate(seed, sim, scenario, frames, rate, sensor):
+        seen["sensor"] = sensor
+        return iter(())
+
+    monkeypatch.setattr("smplify3d_ros.sim.world.simulate_sequence", simulate)
+    monkeypatch.setattr(sequences, "run_sequence", lambda *args: type("Run", (), {"per_person": lambda self: {}})())
+    monkeypatch.setattr(sequences, "summarize", lambda runs: [])
+    out = tmp_path / "sequences.json"
+    assert cli.run(parse(["--sequences", "walk", "--scenes", "1", "--frames", "2", "--sensor", "ouster64",
+                          "--json", str(out), "--no-progress"])) == 0
+    assert seen["sensor"] == "os1_64"
+    assert json.loads(out.read_text())["meta"]["params"] == "ouster64"
+    capsys.readouterr()
+    for bad in (["--sequences", "walk", "--sensor", "velodyne"], ["--sequences", "nowhere"]):
+        assert cli.run(parse([*bad, "--scenes", "1", "--no-progress"])) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("smplify3d bench: unknown") and "\n" not in err, err

@@ -203,14 +203,24 @@ def run(args: Any) -> int:
     from tqdm import tqdm
 
     from smplify3d_ros.config import load_config
+    from smplify3d_ros.eval.bench.methods import profile_for, resolve_sensor
     from smplify3d_ros.fitting.fitter import Fitter
     from smplify3d_ros.frame_fitter import warm_fitter_for
     from smplify3d_ros.sim.config import load_sim_config
     from smplify3d_ros.sim.world import simulate_sequence
 
-    scenario, sensor = args.sequences, args.sensor or "vlp16"
-    overrides = args.overrides_mapping or None
-    config, sim = load_config(args.params, overrides), load_sim_config(args.params, overrides)
+    scenario, overrides = args.sequences, args.overrides_mapping or None
+    try:  # names are checked before anything is fitted: a clear line, not an internal error
+        sensor = resolve_sensor(args.sensor or "vlp16")
+    except ValueError as e:
+        print(f"smplify3d bench: {e}", file=sys.stderr)
+        return 2
+    params = profile_for(sensor, args.params)  # the sensor's own profile (ouster64.yaml), as the scenes' runs
+    config, sim = load_config(params, overrides), load_sim_config(params, overrides)
+    if scenario not in sim.sequence.scenarios:
+        print(f"smplify3d bench: unknown sequence scenario {scenario!r}; known: {', '.join(sim.sequence.scenarios)}",
+              file=sys.stderr)
+        return 2
     fitter = Fitter(config.fitting)
     setup = SequenceSetup(config, fitter, warm_fitter_for(config, fitter))
     first = sim.bench.report_seed_start if args.seed is None else args.seed
@@ -234,7 +244,7 @@ def run(args: Any) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"rows": rows, "people": per_person, "meta": {
             "scenario": scenario, "seeds": [seeds[0], seeds[-1]], "frames": args.frames, "frame_step": step,
-            "sensor": sensor, "params": args.params, "overrides": overrides}}, indent=1))
+            "sensor": sensor, "params": params, "overrides": overrides}}, indent=1))
         print(f"wrote {args.json}")
     return 0
 

@@ -363,4 +363,4 @@ def resolve_sensor(name: str) -> str:
         return name
     if name in SENSOR_ALIASES:
         return SENSOR_ALIASES[name]
-    raise ValueError(f"unknown sensor {name!r}; known: {', '.join([*SENSOR_ALIASES, *SENSOR_LABELS])}")
+    raise ValueError(f"unknown sensor {name!r}; known: {', '.join(dict.fromkeys([*SENSOR_ALIASES, *SENSOR_LABELS]))}")
