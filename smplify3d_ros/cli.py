@@ -42,6 +42,22 @@ COMMANDS = {
 }
 
 
+def at_least(low: float, cast: Callable[[str], float] = int, strict: bool = False) -> Callable[[str], float]:
+    """An argparse `type`: `cast` of the text, at least `low` (`strict`: above it); anything else is
+    argparse's one-line usage error, not a failure deep in the run."""
+    def parse(text: str) -> float:
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected {'an integer' if cast is int else 'a number'}, got {text!r}") from None
+        if not (value > low if strict else value >= low):  # NaN fails too
+            raise argparse.ArgumentTypeError(f"must be {'>' if strict else '>='} {low:g}, got {text!r}")
+        return value
+
+    return parse
+
+
 def _setup(args: argparse.Namespace) -> int:
     """Build what first use would otherwise build inside a latency-critical path."""
     from smplify3d_ros.body import load_body_model

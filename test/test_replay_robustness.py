@@ -617,3 +617,23 @@ def test_sigterm_removes_the_partial_output(tmp_path):
     assert proc.returncode == 130, stderr
     assert "Traceback" not in stdout + stderr and "interrupted" in stderr
     assert leftovers(tmp_path) == [] and not out.exists()
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["bench", "--scenes", "0"], "--scenes: must be >= 1"),
+    (["bench", "--sequences", "--frames", "0"], "--frames: must be >= 1"),
+    (["replay", "in.mcap", "--max-frames", "-1"], "--max-frames: must be >= 1"),
+    (["bench-live", "in.mcap", "--speed", "0"], "--speed: must be > 0"),
+    (["bench-live", "in.mcap", "--settle", "nan"], "--settle: must be >= 0"),
+    (["bench-speed", "--batches", "1", "0"], "--batches: must be >= 1"),
+    (["bench-extract", "--scenes", "x"], "--scenes: expected an integer"),
+    (["tune", "--trials", "0"], "--trials: must be >= 1"),
+])
+def test_counts_out_of_range_are_a_usage_line_before_anything_runs(argv, expected, capfd):
+    """Zero scenes, frames, repeats or trials, a negative frame limit or a playback speed of 0 stopped deep
+    in a run with an internal error (an empty range indexed, a division by zero in the player process)."""
+    with pytest.raises(SystemExit) as stop:
+        cli.main(argv)
+    out, err = capfd.readouterr()
+    assert stop.value.code == 2 and "Traceback" not in out + err
+    assert expected in err.strip().splitlines()[-1], err

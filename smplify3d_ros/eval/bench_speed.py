@@ -20,13 +20,17 @@ import time
 
 import numpy as np
 
+from smplify3d_ros.cli import at_least
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", help="write the rows to this JSON file")
-    parser.add_argument("--repeats", type=int, default=5, help="timed fits per person or batch (median reported)")
+    parser.add_argument("--repeats", type=at_least(1), default=5,
+                        help="timed fits per person or batch (median reported)")
     parser.add_argument("--profiles", nargs="+", default=["thesis", "robot"])
-    parser.add_argument("--batches", nargs="+", type=int, default=[1, 5])
-    parser.add_argument("--people", type=int, default=5, help="people fitted (the largest batch is capped to it)")
+    parser.add_argument("--batches", nargs="+", type=at_least(1), default=[1, 5])
+    parser.add_argument("--people", type=at_least(1), default=5,
+                        help="people fitted (the largest batch is capped to it)")
     parser.add_argument("--seed", type=int, default=0, help="first scene seed")
     parser.add_argument("--sensor", default="vlp16", help="simulated LiDAR (sim.lidar.sensors key)")
     parser.add_argument("--distance", default="3,8", help="people's distance range, m (MIN,MAX)")

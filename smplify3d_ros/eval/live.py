@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from smplify3d_ros.cli import at_least
 from smplify3d_ros.keypoints import COCO17_NAMES
 
 DEFAULT_PROFILE = "jackal_vlp16"  # the node's own default params_file
@@ -361,8 +362,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--params", metavar="PROFILE", default=None, help="params profile of the node")
     parser.add_argument("-p", dest="parameters", type=_parameter, action="append", default=[],
                         metavar="NAME=VALUE", help="a ROS parameter of the node (repeatable)")
-    parser.add_argument("--speed", type=float, default=1.0, help="playback speed (1: the recorded rate)")
-    parser.add_argument("--settle", type=float, default=3.0, help="seconds to wait after the last message")
+    parser.add_argument("--speed", type=at_least(0.0, float, strict=True), default=1.0,
+                        help="playback speed (1: the recorded rate)")
+    parser.add_argument("--settle", type=at_least(0.0, float), default=3.0,
+                        help="seconds to wait after the last message")
     parser.add_argument("--json", type=Path, default=None, help="write the figures to this JSON file")
     parser.add_argument("--in-process-player", action="store_true",
                         help="play the bag in the node's process (default: a process of its own, as sensor drivers)")

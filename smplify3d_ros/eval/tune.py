@@ -33,6 +33,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from smplify3d_ros.cli import at_least
+
 DEFAULT_OUT = Path("out/tune")  # journal and profile go here unless --storage / --out say otherwise
 
 
@@ -206,8 +208,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="params profile name or YAML path the search starts from (default: jackal_vlp16)")
     parser.add_argument("--scenario", default="robot", help="bench scenario (sim.bench.scenarios; default robot)")
     parser.add_argument("--sensor", default=None, help="simulated LiDAR (default: the scenario's)")
-    parser.add_argument("--trials", type=int, default=40, help="trials in all, counting resumed ones (default 40)")
-    parser.add_argument("--scenes", type=int, default=30,
+    parser.add_argument("--trials", type=at_least(1), default=40,
+                        help="trials in all, counting resumed ones (default 40)")
+    parser.add_argument("--scenes", type=at_least(1), default=30,
                         help="scenes searched on, and as many reported on (default 30)")
     parser.add_argument("--seed", type=int, default=None,
                         help="first tuning seed (default: the first of sim.bench.tuning_seeds, 0)")

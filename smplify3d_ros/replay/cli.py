@@ -8,6 +8,8 @@ import os
 import signal
 import sys
 
+from smplify3d_ros.cli import at_least
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", metavar="IN", help="rosbag2 recording: a bag directory, or a .mcap / .db3 file")
@@ -16,7 +18,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--params", metavar="PROFILE", default=None,
                         help="params profile name (e.g. ouster64) or YAML path; default: jackal_vlp16")
     parser.add_argument("--png", metavar="FILE", help="write a picture of the fit of one representative frame")
-    parser.add_argument("--max-frames", type=int, default=None, help="stop after this many synchronized frames")
+    parser.add_argument("--max-frames", type=at_least(1), default=None, help="stop after this many synchronized frames")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an existing output file or bag directory (never an input)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

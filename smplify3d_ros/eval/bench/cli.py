@@ -14,6 +14,7 @@ from typing import Any
 
 import yaml
 
+from smplify3d_ros.cli import at_least
 from smplify3d_ros.eval.bench.methods import MAIN_METHODS, METHODS, Setup, profile_for, resolve_sensor
 from smplify3d_ros.eval.bench.studies import ABLATION_METHODS, STUDIES, BenchRun, Report, run_main, run_study
 from smplify3d_ros.settings import to_dict
@@ -70,12 +71,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--sensor", default=None,
         help="simulated LiDAR (default: the scenario's): vlp16, ouster32, ouster64, ouster128 (or os1_64, ...), livox",
     )
-    parser.add_argument("--scenes", type=int, default=40,
+    parser.add_argument("--scenes", type=at_least(1), default=40,
                         help="number of seeded scenes (default 40; with --sequences: sequences, give e.g. 2)")
     parser.add_argument("--sequences", nargs="?", const="people", default=None, metavar="SCENARIO",
                         help="track people through 10 Hz sequences (sim.sequence.scenarios, default people) "
                              "instead of single scenes: tracked vs single-frame, with and without detector ids")
-    parser.add_argument("--frames", type=int, default=40, help="frames per sequence (--sequences; default 40)")
+    parser.add_argument("--frames", type=at_least(1), default=40, help="frames per sequence (--sequences; default 40)")
     parser.add_argument("--frame-step", type=int, default=1, metavar="N",
                         help="fit every N-th frame of each sequence (--sequences): a node that keeps up with "
                         "10 Hz / N only (default 1)")
