@@ -628,6 +628,8 @@ def test_sigterm_removes_the_partial_output(tmp_path):
     (["bench-speed", "--batches", "1", "0"], "--batches: must be >= 1"),
     (["bench-extract", "--scenes", "x"], "--scenes: expected an integer"),
     (["tune", "--trials", "0"], "--trials: must be >= 1"),
+    (["bench", "--seed", "-5"], "--seed: must be >= 0"),
+    (["bench", "--distance=-1,5"], "--distance: distances must be > 0 m"),
 ])
 def test_counts_out_of_range_are_a_usage_line_before_anything_runs(argv, expected, capfd):
     """Zero scenes, frames, repeats or trials, a negative frame limit or a playback speed of 0 stopped deep

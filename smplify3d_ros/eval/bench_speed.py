@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batches", nargs="+", type=at_least(1), default=[1, 5])
     parser.add_argument("--people", type=at_least(1), default=5,
                         help="people fitted (the largest batch is capped to it)")
-    parser.add_argument("--seed", type=int, default=0, help="first scene seed")
+    parser.add_argument("--seed", type=at_least(0), default=0, help="first scene seed")
     parser.add_argument("--sensor", default="vlp16", help="simulated LiDAR (sim.lidar.sensors key)")
     parser.add_argument("--distance", default="3,8", help="people's distance range, m (MIN,MAX)")
     parser.add_argument("--params", help="params profile or YAML file (default: jackal_vlp16)")

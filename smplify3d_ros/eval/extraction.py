@@ -54,7 +54,7 @@ class Case:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", type=Path, default=None, help="write the results to this JSON file")
     parser.add_argument("--scenes", type=at_least(1), default=30, help="number of simulated scenes")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the first scene")
+    parser.add_argument("--seed", type=at_least(0), default=0, help="seed of the first scene")
     parser.add_argument("--params", metavar="PROFILE", default=None, help="params profile name or YAML path")
     parser.add_argument("--sensor", default="vlp16", help="simulated LiDAR (sim.lidar.sensors key)")
 

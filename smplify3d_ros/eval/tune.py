@@ -212,7 +212,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="trials in all, counting resumed ones (default 40)")
     parser.add_argument("--scenes", type=at_least(1), default=30,
                         help="scenes searched on, and as many reported on (default 30)")
-    parser.add_argument("--seed", type=int, default=None,
+    parser.add_argument("--seed", type=at_least(0), default=None,
                         help="first tuning seed (default: the first of sim.bench.tuning_seeds, 0)")
     parser.add_argument("--iteration-cost", type=float, default=0.2, metavar="MM",
                         help="objective mm per planned iteration of the three stages (default 0.2: 60 iterations "

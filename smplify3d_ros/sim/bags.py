@@ -154,7 +154,8 @@ def run(args: argparse.Namespace) -> int:
     specs = [s for s in BAGS if args.only is None or s.name in args.only]
     unknown = set(args.only or ()) - {s.name for s in BAGS}
     if unknown:
-        print(f"unknown bag(s) {sorted(unknown)}; known: {', '.join(s.name for s in BAGS)}", file=sys.stderr)
+        print(f"smplify3d make-bags: unknown bag(s) {sorted(unknown)}; known: {', '.join(s.name for s in BAGS)}",
+              file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     status = 0

@@ -29,6 +29,8 @@ def _pair(text: str, cast: Callable[[str], Any]) -> tuple[Any, Any]:
     if len(parts) != 2:
         raise argparse.ArgumentTypeError(f"expected MIN{',' if cast is float else '-'}MAX, got {text!r}")
     low, high = cast(parts[0]), cast(parts[1])
+    if cast is float and not low > 0:  # distances (NaN fails too)
+        raise argparse.ArgumentTypeError(f"distances must be > 0 m, got {text!r}")
     if low > high:
         raise argparse.ArgumentTypeError(f"min > max in {text!r}")
     return low, high
@@ -80,7 +82,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frame-step", type=int, default=1, metavar="N",
                         help="fit every N-th frame of each sequence (--sequences): a node that keeps up with "
                         "10 Hz / N only (default 1)")
-    parser.add_argument("--seed", type=int, default=None,
+    parser.add_argument("--seed", type=at_least(0), default=None,
                         help="seed of the first scene (default: sim.bench.report_seed_start, 1000: the report "
                         "seeds; seeds 0-999 are for tuning)")
     parser.add_argument("--people", type=lambda s: _pair(s, int), default=None, metavar="MIN-MAX",
