@@ -32,7 +32,7 @@ from smplify3d_ros.fitting.init import nearest_depth
 from smplify3d_ros.keypoints import KP
 from smplify3d_ros.lidar.config import ExtractionConfig
 from smplify3d_ros.lidar.extract import ExtractionResult, extract_people
-from smplify3d_ros.lidar.ground import GroundPlane
+from smplify3d_ros.lidar.ground import CAMERA_UP, GroundPlane
 from smplify3d_ros.settings import to_dict
 from smplify3d_ros.tracking.background import BackgroundError, BackgroundFitter
 from smplify3d_ros.tracking.tracker import Track, Tracker, WarmStart
@@ -119,7 +119,10 @@ def extract_frame_people(frame: Frame, config: ExtractionConfig, expected_depth:
         expected_depth = np.concatenate([np.asarray(expected_depth, np.float64).reshape(n, 2),
                                          np.full((len(bystanders), 2), np.nan)])
     nearest = None if init is None else partial(_nearest_depths, everyone, pinhole.K, init)
-    up = np.asarray(frame.T_cam_lidar, np.float64)[:3, 2] if config.ground_up == "lidar" else None
+    up = None
+    if config.ground_up == "lidar":  # the LiDAR's z axis, turned up should the LiDAR hang upside down
+        up = np.asarray(frame.T_cam_lidar, np.float64)[:3, 2]
+        up = -up if up @ CAMERA_UP < 0 else up
     result = extract_people(points_cam, everyone, pinhole, config, expected_depth, nearest, up)
     labels = np.where(result.labels >= n, -1, result.labels).astype(np.int32)
     return undistorted, replace(result, people=result.people[:n], labels=labels)

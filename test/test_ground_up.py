@@ -39,3 +39,18 @@ def test_a_camera_pitched_down_finds_the_ground_around_the_lidars_up(anny_model)
         errors[ground_up] = 1000 * float(np.linalg.norm(fits[0].joints - truth.joints, axis=1).mean())
     assert errors["lidar"] < 50.0, errors
     assert errors["camera"] > 1.5 * errors["lidar"], errors  # the old prior: no plane, an upright start 25° off
+
+
+def test_a_lidar_mounted_upside_down_still_gives_the_floor():
+    """The same scan from a LiDAR hung upside down (its z axis pointing at the floor; the extrinsic says
+    so): its z axis is turned up before the floor is looked for around it."""
+    sim_cfg = load_sim_config(overrides={"sim": {"mount": {"camera_pitch_deg": 25.0}}})
+    sim = simulate_scenario(3, sim_cfg, "robot", sensor="vlp16", n_people=1, distance_range=(3.0, 4.0))
+    flip = np.diag([1.0, -1.0, -1.0, 1.0])  # 180° about the LiDAR's x axis
+    frame = dataclasses.replace(sim.frame, points_lidar=(sim.frame.points_lidar @ flip[:3, :3].T).astype(np.float32),
+                                T_cam_lidar=sim.frame.T_cam_lidar @ flip)
+    _, upright = extract_frame_people(sim.frame, load_config().lidar)
+    _, hung = extract_frame_people(frame, load_config().lidar)
+    assert hung.ground.fitted
+    assert np.allclose(hung.ground.normal, upright.ground.normal, atol=1e-6)
+    assert np.array_equal(hung.people[0].indices, upright.people[0].indices)
