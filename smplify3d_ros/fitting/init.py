@@ -82,7 +82,8 @@ def size_depths(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, whole_bo
     lone ankle a bound on its own: it may be the foot in the air, which reads twice as far or more from a
     low camera (a walker 2.2 m out read 4.5 m and lost their 223 points as an occluder's); beside another
     cue the nearest of them still is (docs/benchmarks.md, "A lone ankle")."""
-    depths = [d for d in (ground_depth(obs, K, cfg),) if d is not None]
+    ground = ground_depth(obs, K, cfg)
+    depths = [] if ground is None else [ground]
     kp = obs.keypoints
     f = 0.5 * (K[0, 0] + K[1, 1])
     if _confident(kp, TORSO, cfg.keypoint_conf):
@@ -98,7 +99,7 @@ def size_depths(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, whole_bo
         span = float(kp[ankles, 1].max() - kp[head, 1].min())
         depths.append(float(f * cfg.head_ankle_fraction * cfg.body_height / max(span, 1.0)))
     lone_ankle = sum(kp[KP[n], 2] >= cfg.limb_keypoint_conf for n in ("left_ankle", "right_ankle")) < 2
-    if len(depths) == 1 and lone_ankle and ground_depth(obs, K, cfg) is not None:
+    if ground is not None and len(depths) == 1 and lone_ankle:
         return []  # ground contact through the one ankle seen, alone: it may be the foot in the air
     return depths
 
