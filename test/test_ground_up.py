@@ -15,8 +15,8 @@ from smplify3d_ros.sim.world import simulate_scenario
 def test_a_camera_pitched_down_finds_the_ground_around_the_lidars_up(anny_model):
     """A camera pitched 25° down over a level VLP-16: the floor's normal is 25° off the camera's −y, past
     the 20° the plane may tilt by, so looked for around the camera's up it is not found, and the fit
-    stands upright in the camera frame: 25° off (tuning seeds 0-39 at 2-8 m: 562.5 mm, 64 % of the
-    people missed). Looked for around the LiDAR's z axis it is the floor, the camera's height below it,
+    stands upright in the camera frame: 25° off (tuning seeds 0-39 at 2-8 m: 562.5 mm, 64 % of the fits
+    off their points). Looked for around the LiDAR's z axis it is the floor, the camera's height below it,
     and the person is fitted standing on it."""
     sim_cfg = load_sim_config(overrides={"sim": {"mount": {"camera_pitch_deg": 25.0}}})
     sim = simulate_scenario(3, sim_cfg, "robot", sensor="vlp16", n_people=1, distance_range=(3.0, 4.0))
