@@ -119,7 +119,7 @@ def extract_frame_people(frame: Frame, config: ExtractionConfig, expected_depth:
         expected_depth = np.concatenate([np.asarray(expected_depth, np.float64).reshape(n, 2),
                                          np.full((len(bystanders), 2), np.nan)])
     nearest = None if init is None else partial(_nearest_depths, everyone, pinhole.K, init)
-    up = None
+    up = CAMERA_UP
     if config.ground_up == "lidar":  # the LiDAR's z axis, turned up should the LiDAR hang upside down
         up = np.asarray(frame.T_cam_lidar, np.float64)[:3, 2]
         up = -up if up @ CAMERA_UP < 0 else up

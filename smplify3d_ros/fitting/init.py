@@ -98,7 +98,7 @@ def size_depths(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, whole_bo
     if head and ankles:
         span = float(kp[ankles, 1].max() - kp[head, 1].min())
         depths.append(float(f * cfg.head_ankle_fraction * cfg.body_height / max(span, 1.0)))
-    lone_ankle = sum(kp[KP[n], 2] >= cfg.limb_keypoint_conf for n in ("left_ankle", "right_ankle")) < 2
+    lone_ankle = not _confident(kp, ("left_ankle", "right_ankle"), cfg.limb_keypoint_conf)
     if ground is not None and len(depths) == 1 and lone_ankle:
         return []  # ground contact through the one ankle seen, alone: it may be the foot in the air
     return depths

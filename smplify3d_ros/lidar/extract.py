@@ -100,7 +100,7 @@ def extract_people(
     points_cam: np.ndarray, keypoints: np.ndarray, camera: CameraModel, config: ExtractionConfig,
     expected_depth: np.ndarray | None = None,
     min_depth: Callable[[GroundPlane, np.ndarray], np.ndarray] | None = None,
-    up: np.ndarray | None = None,
+    up: np.ndarray = CAMERA_UP,
 ) -> ExtractionResult:
     """Each person's points in a full scan.
 
@@ -111,8 +111,8 @@ def extract_people(
     min_depth: optional, given the frame's ground plane (step 3) and each person's padded keypoint bbox
     ((P, 4), NaN rows for people without a skeleton), the (P,) depth (m) nearer than which each person's
     main cluster cannot lie, e.g. what their size in the image allows (NaN: no bound).
-    up: optional (3,) the expected up direction in the camera frame, around which the ground plane is
-    looked for (default: the camera's -y, a level camera).
+    up: (3,) the expected up direction in the camera frame, around which the ground plane is looked for
+    (default: the camera's -y, a level camera).
     """
     points = np.asarray(points_cam, dtype=np.float32).reshape(-1, 3)
     keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 17, 3)
@@ -139,7 +139,6 @@ def extract_people(
     # 3. Ground removal, with a plane fitted to everything the camera sees; when that shows too little
     # floor (walls ahead, a camera mounted high: a VLP-16 1.35 m up first meets the floor 5 m out), to
     # the whole scan, whose floor beside and behind the robot is the same plane on flat ground.
-    up = CAMERA_UP if up is None else up
     ground = fit_ground(points[visible], config, up)
     if not ground.fitted:
         ground = fit_ground(points, config, up)
