@@ -34,6 +34,27 @@ COCO17_FLIP_PAIRS: tuple[tuple[int, int], ...] = tuple(
     (KP[n], KP[n.replace("left_", "right_")]) for n in COCO17_NAMES if n.startswith("left_")
 )
 
+# Left/right groups a detector confuses together (a whole forearm-and-elbow or shin-and-knee flips at
+# once): the simulated detector's swaps and the fitter's swapped readings (`init.swap_hypotheses`).
+SWAP_GROUPS: dict[str, tuple[tuple[int, int], ...]] = {
+    "face": ((KP["left_eye"], KP["right_eye"]), (KP["left_ear"], KP["right_ear"])),
+    "shoulders": ((KP["left_shoulder"], KP["right_shoulder"]),),
+    "arms": ((KP["left_elbow"], KP["right_elbow"]), (KP["left_wrist"], KP["right_wrist"])),
+    "hips": ((KP["left_hip"], KP["right_hip"]),),
+    "legs": ((KP["left_knee"], KP["right_knee"]), (KP["left_ankle"], KP["right_ankle"])),
+}
+
+
+def swapped_order(groups) -> list[int]:
+    """The keypoint order that reads the left/right pairs of `groups` (SWAP_GROUPS names) the other way
+    round: `keypoints[order]` swaps them, every other keypoint stays."""
+    order = list(range(NUM_KEYPOINTS))
+    for name in groups:
+        for a, b in SWAP_GROUPS[name]:
+            order[a], order[b] = order[b], order[a]
+    return order
+
+
 # Skeleton edges for drawing (LINE_LIST markers, overlays).
 COCO17_SKELETON: tuple[tuple[int, int], ...] = (
     (KP["left_ankle"], KP["left_knee"]),

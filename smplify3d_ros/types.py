@@ -118,6 +118,7 @@ FLAG_FEW_KEYPOINTS = "few_keypoints"  # too few confident keypoints for a reliab
 FLAG_WARM_START = "warm_start"  # a tracked person, fitted from their previous fit with the short warm solve
 FLAG_POINTS_TOO_NEAR = "points_too_near"  # the person's points lay far nearer than their image size allows: dropped
 FLAG_LOST = "lost"  # a warm fit that lost its person, output while its cold refit runs (tracking.lost_background)
+FLAG_SWAPPED_KEYPOINTS = "swapped_keypoints"  # fitted reading a limb's left/right keypoints swapped (a detector's swap)
 FLAG_LIDAR_MISMATCH = "lidar_mismatch"  # the fit missed its points (points_to_mesh_m above fitting.lidar_mismatch_m)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from smplify3d_ros.keypoints import SWAP_GROUPS
 from smplify3d_ros.settings import require
 
 
@@ -111,6 +112,8 @@ class InitConfig:
     start_knee_flexion_deg: float
     bent_trunk_hypotheses: int
     start_trunk_pitch_deg: float
+    swap_hypotheses: list[str]
+    swap_hypothesis_margin: float
 
     def __post_init__(self) -> None:
         require(0.0 < self.head_ankle_fraction <= 1.0, "head_ankle_fraction must be in (0, 1]")
@@ -133,6 +136,9 @@ class InitConfig:
         require(0 <= self.start_knee_flexion_deg <= 150, "start_knee_flexion_deg must be in [0, 150]")
         require(self.bent_trunk_hypotheses >= 0, "bent_trunk_hypotheses must be >= 0 (0: none)")
         require(0 <= self.start_trunk_pitch_deg <= 90, "start_trunk_pitch_deg must be in [0, 90]")
+        unknown = sorted(set(self.swap_hypotheses) - set(SWAP_GROUPS))
+        require(0.0 < self.swap_hypothesis_margin <= 1.0, "swap_hypothesis_margin must be in (0, 1]")
+        require(not unknown, f"swap_hypotheses: unknown keypoint groups {unknown}; known: {list(SWAP_GROUPS)}")
         require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")
         require(self.hypothesis_iterations >= 0, "hypothesis_iterations must be >= 0 (at most refine_iterations run)")
         require(self.heading_hypotheses >= 1, "heading_hypotheses must be >= 1")

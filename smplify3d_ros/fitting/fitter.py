@@ -33,7 +33,7 @@ from smplify3d_ros.fitting.problem import FitProblem, FitState
 from smplify3d_ros.fitting.stages import StageSpec, optimize, run_stage
 from smplify3d_ros.fitting.visibility import occluded_parts, visible_vertices
 from smplify3d_ros.geometry import move_body, transform
-from smplify3d_ros.keypoints import PART_NAMES
+from smplify3d_ros.keypoints import PART_NAMES, swapped_order
 from smplify3d_ros.types import (
     FLAG_DIVERGED,
     FLAG_EXTERNAL_INIT,
@@ -42,6 +42,7 @@ from smplify3d_ros.types import (
     FLAG_IMAGE_ONLY,
     FLAG_LIDAR_MISMATCH,
     FLAG_POINTS_TOO_NEAR,
+    FLAG_SWAPPED_KEYPOINTS,
     BodyFit,
     BodyParams,
     FitQuality,
@@ -78,6 +79,9 @@ class Batch:
     builtin: np.ndarray  # (B,) bool: started from the built-in initializer
     state: FitState | None = None
     hypotheses: list[list[BodyParams]] = dataclasses.field(default_factory=list)  # built-in starts per person
+    # per person and start, the keypoint order it reads the detection in (None: as detected; else a
+    # left/right swap, `init.swap_hypotheses`); per row of a trial batch of hypotheses, that row's
+    readings: list = dataclasses.field(default_factory=list)
     keypoint_depth: np.ndarray | None = None  # (B, 17) limb-depth targets, camera z (NaN: none)
     problem: FitProblem | None = None  # the stages' observations (also what the fit quality is measured on)
     icp_ok: np.ndarray | None = None  # (B,) bool
@@ -186,13 +190,7 @@ class Fitter:
         """Which terms each person gets: LiDAR or image only, and the visibility of its parts."""
         cfg = self.config
         torch.manual_seed(cfg.seed)
-        vis = cfg.visibility
-        occluded_image = [occluded_parts(p.keypoints[:, 2], vis.keypoint_conf_image) for p in people]
-        occluded_joints = np.zeros((len(people), len(self.model.joint_names)), dtype=bool)
-        if options.use_occlusion_prior:
-            for i, occluded in enumerate(occluded_image):
-                for part in np.flatnonzero(occluded):
-                    occluded_joints[i, self.model.part_joint_index[part]] = True
+        occlusion = [self._occlusion(p.keypoints[:, 2], options) for p in people]
         people = list(people)
         flags: list[set[str]] = [set() for _ in people]
         K = np.asarray(K, np.float64)
@@ -214,12 +212,35 @@ class Fitter:
             keypoints=self._tensor([p.keypoints[:, :2] for p in people]),
             confidence=self._tensor([p.keypoints[:, 2] for p in people]),
             use_lidar=use_lidar,
-            occluded_image=occluded_image,
-            occluded_lidar=[occluded_parts(p.keypoints[:, 2], vis.keypoint_conf_lidar) for p in people],
-            occluded_joints=occluded_joints,
+            occluded_image=[o[0] for o in occlusion],
+            occluded_lidar=[o[1] for o in occlusion],
+            occluded_joints=np.stack([o[2] for o in occlusion]),
             flags=flags,
             builtin=np.zeros(len(people), dtype=bool),
         )
+
+    def _occlusion(self, confidence: np.ndarray, options: FitOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What a person's keypoint confidences (17,) leave occluded: the parts the image term and the
+        parts L_3D treat as occluded, and the joints the occlusion prior holds (none without it)."""
+        vis = self.config.visibility
+        image = occluded_parts(confidence, vis.keypoint_conf_image)
+        joints = np.zeros(len(self.model.joint_names), dtype=bool)
+        if options.use_occlusion_prior:
+            for part in np.flatnonzero(image):
+                joints[self.model.part_joint_index[part]] = True
+        return image, occluded_parts(confidence, vis.keypoint_conf_lidar), joints
+
+    def _read_in_order(self, batch: Batch, row: int, order: list[int]) -> None:
+        """Row `row` of `batch` reads its detection in `order` (a left/right swap of some keypoints): its
+        keypoints, confidences, limb-depth targets and the occlusion they imply, in place."""
+        index = torch.as_tensor(order, device=self.device)
+        batch.keypoints[row] = batch.keypoints[row, index]
+        batch.confidence[row] = batch.confidence[row, index]
+        if batch.keypoint_depth is not None:
+            batch.keypoint_depth[row] = batch.keypoint_depth[row, order]
+        image, lidar, joints = self._occlusion(batch.confidence[row].cpu().double().numpy(), batch.options)
+        batch.occluded_image[row], batch.occluded_lidar[row], batch.occluded_joints[row] = image, lidar, joints
+        batch.flags[row].add(FLAG_SWAPPED_KEYPOINTS)
 
     def _initialize(self, batch: Batch) -> None:
         """Step 1: an external estimate of this model when a person has one, else the built-in one's
@@ -227,12 +248,15 @@ class Fitter:
         standing, then the first `init.flexed_leg_hypotheses` of them again with flexed legs where the
         image shows a thigh, or the knees and the points can tell (`initializer.flexed_legs_tried`), the
         first `init.bent_trunk_hypotheses` bent over at the hips by `init.start_trunk_pitch_deg` for a
-        person with LiDAR points, then the person's own `hypothesis` (a track's warm start), if any."""
+        person with LiDAR points, the best guess again reading each of `init.swap_hypotheses`' left/right
+        keypoint groups the other way round (a detector's swap), then the person's own `hypothesis` (a
+        track's warm start), if any, read as detected and swapped alike."""
         cfg = self.config
         mean_shape = self.model.mean_shape().cpu().double().numpy()
         K = batch.K.cpu().double().numpy()
         params: list[BodyParams] = []
         batch.hypotheses = [[] for _ in batch.people]
+        batch.readings = [[] for _ in batch.people]
         batch.keypoint_depth = np.full((batch.size, 17), np.nan)
         for i, p in enumerate(batch.people):
             if p.init is not None and p.init.model == self.model.name:
@@ -256,8 +280,15 @@ class Fitter:
             for pose, root, pelvis in starts:
                 batch.hypotheses[i].append(BodyParams(self.model.name, mean_shape.copy(), pose.copy(),
                                                       root.copy(), pelvis.copy()))
+            batch.readings[i] = [None] * len(starts)
+            if starts:
+                for order in self._own_readings()[1:]:
+                    batch.hypotheses[i].append(batch.hypotheses[i][0].copy())
+                    batch.readings[i].append(order)
             if p.hypothesis is not None and p.hypothesis.model == self.model.name:
-                batch.hypotheses[i].append(p.hypothesis.copy())
+                for order in self._own_readings():
+                    batch.hypotheses[i].append(p.hypothesis.copy())
+                    batch.readings[i].append(order)
             params.append(batch.hypotheses[i][0])
             batch.builtin[i] = True
             if batch.use_lidar[i]:
@@ -305,6 +336,9 @@ class Fitter:
         with torch.no_grad():
             for name in PARAM_FIELDS:
                 getattr(out.state, name)[torch.as_tensor(builtin_rows)] = getattr(trial.state, name)[source]
+        for row, trial_row in zip(builtin_rows, source.tolist()):
+            if trial.readings[trial_row] is not None:
+                self._read_in_order(out, int(row), trial.readings[trial_row])
         rest = init.refine_iterations - min(init.hypothesis_iterations, init.refine_iterations)
         if rest > 0:
             built = np.flatnonzero(out.builtin)
@@ -317,14 +351,21 @@ class Fitter:
     def _compete(self, batch: Batch) -> tuple[Batch, dict[int, np.ndarray]]:
         """Every hypothesis of every built-in person refined together for `init.hypothesis_iterations`
         (0: compared as they start): the trial batch and, per built-in person, its rows that go on, lowest
-        loss first (at most `init.final_hypotheses`, within `init.final_hypothesis_ratio` of the lowest)."""
+        loss first (at most `init.final_hypotheses`, within `init.final_hypothesis_ratio` of the lowest), a
+        swapped reading's loss counted over `init.swap_hypothesis_margin`."""
         init = self.config.init
         rows = np.array([i for i in range(batch.size) for _ in batch.hypotheses[i]], dtype=np.int64)
         trial = batch.take(rows)
+        trial.readings = [order for i in range(batch.size) for order in batch.readings[i]]
+        for r, order in enumerate(trial.readings):
+            if order is not None:
+                self._read_in_order(trial, r, order)
         trial.state = self._placed_state([h for i in range(batch.size) for h in batch.hypotheses[i]],
                                          np.ones(len(rows), dtype=bool))
         loss = self._refine(trial, min(init.hypothesis_iterations, init.refine_iterations))
         loss = loss.cpu().double().numpy()
+        swapped = np.array([order is not None for order in trial.readings])
+        loss[swapped] /= init.swap_hypothesis_margin  # a swapped reading must do clearly better
         kept = {}
         for i in np.flatnonzero(batch.builtin):
             mine = np.flatnonzero(rows == i)
@@ -348,8 +389,14 @@ class Fitter:
             return [False] * len(people)
         trial, kept = self._compete(batch)
         offsets = np.cumsum([0] + [len(h) for h in batch.hypotheses])
+        own = len(self._own_readings())  # the last rows of a person with a hypothesis
         return [i in kept and p.hypothesis is not None and p.hypothesis.model == self.model.name
-                and kept[i][0] == offsets[i + 1] - 1 for i, p in enumerate(batch.people)]
+                and kept[i][0] >= offsets[i + 1] - own for i, p in enumerate(batch.people)]
+
+    def _own_readings(self) -> list[list[int] | None]:
+        """The keypoint orders a person's own `hypothesis` is tried in: as detected, and each of
+        `init.swap_hypotheses`' swaps (the fit it came from may have read the detector's swap)."""
+        return [None] + [swapped_order([group]) for group in self.config.init.swap_hypotheses]
 
     def _refine(self, trial: Batch, iterations: int) -> torch.Tensor:
         """`iterations` of the built-in init's refinement of `trial`'s state, in place; (B,) final losses

@@ -296,6 +296,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "fitting.init.flexed_leg_min_px": (0, _INF), "fitting.init.head_ankle_fraction": (0, 1),
     "fitting.init.start_hip_flexion_deg": (0, 125), "fitting.init.start_knee_flexion_deg": (0, 150),
     "fitting.init.bent_trunk_hypotheses": (0, _INF), "fitting.init.start_trunk_pitch_deg": (0, 90),
+    "fitting.init.swap_hypothesis_margin": (0, 1),
     "fitting.init.refine_lr": (0, _INF), "fitting.min_points": (0, _INF), "fitting.min_points_depth": (1, _INF),
     "fitting.min_keypoints": (0, _INF), "fitting.num_threads": (0, _INF), "fitting.divergence_factor": (1, _INF),
     # lidar

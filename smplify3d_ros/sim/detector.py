@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from smplify3d_ros.camera import project_points
-from smplify3d_ros.keypoints import KP, NUM_KEYPOINTS
+from smplify3d_ros.keypoints import KP, NUM_KEYPOINTS, SWAP_GROUPS, swapped_order
 from smplify3d_ros.sim.camera import Rendering
 from smplify3d_ros.sim.config import DetectorConfig
 from smplify3d_ros.types import CameraModel
@@ -34,15 +34,6 @@ COCO_OKS_SIGMAS = (
     / 10.0
 )
 JOINT_SPREAD = COCO_OKS_SIGMAS / COCO_OKS_SIGMAS.mean()
-
-# Left/right groups a detector confuses together (a whole arm or leg flips at once).
-SWAP_GROUPS: tuple[tuple[tuple[int, int], ...], ...] = (
-    ((KP["left_eye"], KP["right_eye"]), (KP["left_ear"], KP["right_ear"])),
-    ((KP["left_shoulder"], KP["right_shoulder"]),),
-    ((KP["left_elbow"], KP["right_elbow"]), (KP["left_wrist"], KP["right_wrist"])),
-    ((KP["left_hip"], KP["right_hip"]),),
-    ((KP["left_knee"], KP["right_knee"]), (KP["left_ankle"], KP["right_ankle"])),
-)
 
 
 @dataclass
@@ -62,7 +53,7 @@ class Detection:
     keypoints: np.ndarray  # (17, 3) float64 u, v (distorted px), score
     visibility: KeypointVisibility
     sigma_px: np.ndarray  # (17,) pixel noise sigma used per keypoint
-    swapped: list[int]  # indices into SWAP_GROUPS that were swapped
+    swapped: list[int]  # indices into SWAP_GROUPS (in its order) that were swapped
 
 
 def keypoint_visibility(
@@ -136,11 +127,10 @@ def detect_person(
 
     keypoints = np.concatenate([noisy, score[:, None]], axis=1)
     swapped = []
-    for g, group in enumerate(SWAP_GROUPS):
+    for g, group in enumerate(SWAP_GROUPS):  # in the dict's order: the draws stay as they were
         if rng.random() < cfg.swap_prob:
             swapped.append(g)
-            for a, b in group:
-                keypoints[[a, b]] = keypoints[[b, a]]
+            keypoints = keypoints[swapped_order([group])]
     return Detection(person_id, keypoints, vis, sigma, swapped)
 
 
