@@ -282,11 +282,15 @@ class Fitter:
                                                       root.copy(), pelvis.copy()))
             batch.readings[i] = [None] * len(starts)
             if starts:
-                for order in self._own_readings()[1:]:
-                    batch.hypotheses[i].append(batch.hypotheses[i][0].copy())
+                for order in self._readings()[1:]:  # the best guess from the swapped detection
+                    swapped = dataclasses.replace(p, keypoints=p.keypoints[order])
+                    root, pelvis = initializer.builtin_hypotheses(swapped, K, cfg.init, bool(batch.use_lidar[i]),
+                                                                  len(p.points) >= cfg.min_points_depth)[0]
+                    batch.hypotheses[i].append(BodyParams(self.model.name, mean_shape.copy(), self._start_pose.copy(),
+                                                          root, pelvis))
                     batch.readings[i].append(order)
             if p.hypothesis is not None and p.hypothesis.model == self.model.name:
-                for order in self._own_readings():
+                for order in self._readings():
                     batch.hypotheses[i].append(p.hypothesis.copy())
                     batch.readings[i].append(order)
             params.append(batch.hypotheses[i][0])
@@ -389,13 +393,14 @@ class Fitter:
             return [False] * len(people)
         trial, kept = self._compete(batch)
         offsets = np.cumsum([0] + [len(h) for h in batch.hypotheses])
-        own = len(self._own_readings())  # the last rows of a person with a hypothesis
         return [i in kept and p.hypothesis is not None and p.hypothesis.model == self.model.name
-                and kept[i][0] >= offsets[i + 1] - own for i, p in enumerate(batch.people)]
+                and kept[i][0] >= offsets[i + 1] - len(self._readings())  # a person's own start: the last rows
+                for i, p in enumerate(batch.people)]
 
-    def _own_readings(self) -> list[list[int] | None]:
-        """The keypoint orders a person's own `hypothesis` is tried in: as detected, and each of
-        `init.swap_hypotheses`' swaps (the fit it came from may have read the detector's swap)."""
+    def _readings(self) -> list[list[int] | None]:
+        """The keypoint orders a person's starts are tried in: as detected (None), then each of
+        `init.swap_hypotheses`' swaps (a person's own `hypothesis`, a track's warm start, in each too: the
+        fit it came from may have read a detector's swap)."""
         return [None] + [swapped_order([group]) for group in self.config.init.swap_hypotheses]
 
     def _refine(self, trial: Batch, iterations: int) -> torch.Tensor:
