@@ -7,14 +7,11 @@ import pytest
 import torch
 
 from smplify3d_ros.config import load_config
-from smplify3d_ros.eval.synthetic import default_intrinsics, sample_surface
+from smplify3d_ros.eval.synthetic import default_intrinsics, make_person
 from smplify3d_ros.fitting.fitter import Fitter
-from smplify3d_ros.fitting.init import upright_root_orient
-from smplify3d_ros.fitting.losses import project
-from smplify3d_ros.fitting.visibility import front_facing
 from smplify3d_ros.keypoints import KP, SWAP_GROUPS, swapped_order
 from smplify3d_ros.settings import ConfigError
-from smplify3d_ros.types import FLAG_SWAPPED_KEYPOINTS, BodyParams, PersonObservation
+from smplify3d_ros.types import FLAG_SWAPPED_KEYPOINTS
 
 ANKLES = [KP["left_ankle"], KP["right_ankle"]]
 
@@ -23,23 +20,16 @@ def _fitter(model, **init) -> Fitter:
     return Fitter(load_config(overrides={"fitting": {"init": init}}).fitting, model)
 
 
-def _walker_from_behind(model, rng, transl=(0.3, 0.4, 5.0), n_points: int = 250):
-    """A person (5 m out) walking away from the camera, mid-stride (left thigh forward, right back), the
-    LiDAR's `n_points` over the surface turned to the sensor; perfect keypoints."""
+def _walker_from_behind(model, rng, distance: float = 5.0, n_points: int = 250):
+    """A person `distance` m out walking away from the camera, mid-stride (left thigh forward, right
+    back), the LiDAR's `n_points` over the surface turned to the sensor; perfect keypoints."""
     angles = torch.zeros(1, len(model.joint_names), 3, dtype=torch.float64)
     for name, degrees in (("left_hip", 30.0), ("right_hip", -20.0), ("left_knee", 10.0), ("right_knee", 30.0)):
         angles[0, model.joint_names.index(name), 0] = np.deg2rad(degrees)
     pose = model.anatomical_to_pose(angles, from_neutral=True)[0].numpy()
-    truth = BodyParams(model.name, np.full(len(model.shape_names), 0.5), pose, upright_root_orient(np.pi),
-                       np.array(transl))
-    body = model.posed([truth])[0]
     K = default_intrinsics()
-    uv = project(torch.as_tensor(body.keypoints3d)[None], torch.as_tensor(K))[0].numpy()
-    keypoints = np.concatenate([uv, np.ones((17, 1))], axis=1)
-    faces = model.faces.cpu().numpy()
-    front = front_facing(body.vertices, faces, np.zeros(3), 0.0) & (model.part_of_face.cpu().numpy() >= 0)
-    points = sample_surface(body.vertices, faces[front], n_points, 0.005, rng).astype(np.float32)
-    return PersonObservation(0, keypoints, np.array([*uv.min(0), *uv.max(0)]), points), K, body
+    person = make_person(model, rng, K, distance, np.pi, n_points, 0.005, 0.0, pose=pose)
+    return person.observation, K, model.posed([person.truth])[0]
 
 
 def test_swapped_order_swaps_the_groups_pairs_only():
@@ -79,7 +69,7 @@ def test_shoulders_a_detector_swapped_start_from_the_heading_they_give_when_swap
     """A shoulder pair swapped alone contradicts the hips about where the person faces: its swapped
     reading starts from the heading of the swapped detection, and wins. Few points, as on a person 10 m
     out: many would hold the torso on their own."""
-    obs, K, body = _walker_from_behind(anny_model, rng, (0.5, 0.4, 10.0), 25)
+    obs, K, body = _walker_from_behind(anny_model, rng, 10.0, 25)
     obs.keypoints[:] = obs.keypoints[swapped_order(["shoulders"])]
     shoulders = [KP["left_shoulder"], KP["right_shoulder"]]
     error, flags = {}, {}
