@@ -80,7 +80,7 @@ class Batch:
     state: FitState | None = None
     hypotheses: list[list[BodyParams]] = dataclasses.field(default_factory=list)  # built-in starts per person
     # per person and start, the keypoint order it reads the detection in (None: as detected; else a
-    # left/right swap, `init.swap_hypotheses`); per row of a trial batch of hypotheses, that row's
+    # left/right swap, `init.swap_hypotheses`); in a trial batch of hypotheses (`_compete`), one per row
     readings: list = dataclasses.field(default_factory=list)
     keypoint_depth: np.ndarray | None = None  # (B, 17) limb-depth targets, camera z (NaN: none)
     problem: FitProblem | None = None  # the stages' observations (also what the fit quality is measured on)
@@ -248,9 +248,10 @@ class Fitter:
         standing, then the first `init.flexed_leg_hypotheses` of them again with flexed legs where the
         image shows a thigh, or the knees and the points can tell (`initializer.flexed_legs_tried`), the
         first `init.bent_trunk_hypotheses` bent over at the hips by `init.start_trunk_pitch_deg` for a
-        person with LiDAR points, the best guess again reading each of `init.swap_hypotheses`' left/right
-        keypoint groups the other way round (a detector's swap), then the person's own `hypothesis` (a
-        track's warm start), if any, read as detected and swapped alike."""
+        person with LiDAR points, for each of `init.swap_hypotheses`' left/right keypoint groups the best
+        guess of the detection read with that group swapped (a detector's swap; a swapped shoulder or hip
+        pair turns the heading read from it), then the person's own `hypothesis` (a track's warm start),
+        if any, read as detected and swapped alike."""
         cfg = self.config
         mean_shape = self.model.mean_shape().cpu().double().numpy()
         K = batch.K.cpu().double().numpy()
