@@ -56,6 +56,13 @@ def transform_from_quaternion(xyz, xyzw) -> np.ndarray:
     return transform(quaternion_to_matrix(xyzw), xyz)
 
 
+def unit(v) -> np.ndarray:
+    """`v` scaled to length 1 (zeros where it has no direction, below 1e-12)."""
+    v = np.asarray(v)
+    n = float(np.linalg.norm(v))
+    return v / n if n > 1e-12 else np.zeros_like(v)
+
+
 def invert(T: np.ndarray) -> np.ndarray:
     """The inverse of a rigid (4, 4) transform, without a general matrix inverse."""
     R, t = T[:3, :3], T[:3, 3]

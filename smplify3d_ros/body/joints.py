@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from smplify3d_ros.geometry import unit
+
 BODY_JOINTS: tuple[str, ...] = (
     "left_hip",
     "right_hip",
@@ -113,10 +115,6 @@ BENDING_JOINTS: tuple[str, ...] = ("left_elbow", "right_elbow", "left_knee", "ri
 HINGE_JOINTS: tuple[str, ...] = BENDING_JOINTS
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / max(float(np.linalg.norm(v)), 1e-9)
-
-
 @dataclass(frozen=True)
 class AnatomicalFrames:
     """Per-joint anatomical frames and ranges, derived from one model's rest joint positions."""
@@ -128,8 +126,8 @@ class AnatomicalFrames:
 
 def _signed_angle(a: np.ndarray, b: np.ndarray, axis: np.ndarray) -> float:
     """Angle (rad) rotating unit vector a to b about `axis` (components off the axis plane ignored)."""
-    a = _unit(a - axis * (a @ axis))
-    b = _unit(b - axis * (b @ axis))
+    a = unit(a - axis * (a @ axis))
+    b = unit(b - axis * (b @ axis))
     return float(np.arctan2(axis @ np.cross(a, b), a @ b))
 
 
@@ -145,22 +143,22 @@ def anatomical_frames(rest_joints: np.ndarray) -> AnatomicalFrames:
         child = JOINT_CHILD[name]
         parent = JOINT_PARENT[name]
         if child is not None:
-            u = _unit(pos[child] - pos[name])
+            u = unit(pos[child] - pos[name])
         elif parent is not None:  # end joints (ankle, wrist, head) continue their parent bone
-            u = _unit(pos[name] - pos[parent])
+            u = unit(pos[name] - pos[parent])
         else:
             u = _UP
         a = np.cross(u, spec.flexion_direction)
         if np.linalg.norm(a) < 1e-6:  # bone along the flexion direction: fall back to the lateral axis
             a = _LEFT.copy()
-        a = _unit(a)
-        b = _unit(np.cross(a, u))
+        a = unit(a)
+        b = unit(np.cross(a, u))
         lateral = _LEFT if spec.side >= 0 else -_LEFT
         if np.cross(b, u) @ lateral < 0:
             b = -b
         frames[i] = np.stack([a, u, b])
         if name in HINGE_JOINTS and parent is not None:
-            parent_dir = _unit(pos[name] - pos[parent])
+            parent_dir = unit(pos[name] - pos[parent])
             rest_offset[i, 0] = _signed_angle(parent_dir, u, a)
         elif spec.neutral_direction is not None:
             rest_offset[i, 0] = _signed_angle(spec.neutral_direction, u, a)

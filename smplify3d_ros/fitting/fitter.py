@@ -146,6 +146,11 @@ class Fitter:
         # flexed as much, so that the legs stay upright
         self._bent_start_pose = self._builtin_start_pose(self.config.init.start_trunk_pitch_deg)
         self._keypoints_only = torch.zeros(1, dtype=torch.long, device=self.device)
+        # the keypoint orders every person's starts are tried in: as detected (None), then each of
+        # `init.swap_hypotheses`' swaps (a person's own `hypothesis`, a track's warm start, in each too: the
+        # fit it came from may have read a detector's swap)
+        self._readings: list[list[int] | None] = [None] + [swapped_order([group])
+                                                          for group in config.init.swap_hypotheses]
         self.part_of_face_np = self.model.part_of_face.cpu().numpy()
         self._around = free_space.vertex_faces(self.faces_np, int(self.faces_np.max()) + 1)
 
@@ -283,7 +288,7 @@ class Fitter:
                                                       root.copy(), pelvis.copy()))
             batch.readings[i] = [None] * len(starts)
             if starts:
-                for order in self._readings()[1:]:  # the best guess from the swapped detection
+                for order in self._readings[1:]:  # the best guess from the swapped detection
                     swapped = dataclasses.replace(p, keypoints=p.keypoints[order])
                     root, pelvis = initializer.builtin_hypotheses(swapped, K, cfg.init, bool(batch.use_lidar[i]),
                                                                   len(p.points) >= cfg.min_points_depth)[0]
@@ -291,7 +296,7 @@ class Fitter:
                                                           root, pelvis))
                     batch.readings[i].append(order)
             if p.hypothesis is not None and p.hypothesis.model == self.model.name:
-                for order in self._readings():
+                for order in self._readings:
                     batch.hypotheses[i].append(p.hypothesis.copy())
                     batch.readings[i].append(order)
             params.append(batch.hypotheses[i][0])
@@ -395,14 +400,8 @@ class Fitter:
         trial, kept = self._compete(batch)
         offsets = np.cumsum([0] + [len(h) for h in batch.hypotheses])
         return [i in kept and p.hypothesis is not None and p.hypothesis.model == self.model.name
-                and kept[i][0] >= offsets[i + 1] - len(self._readings())  # a person's own start: the last rows
+                and kept[i][0] >= offsets[i + 1] - len(self._readings)  # a person's own start: the last rows
                 for i, p in enumerate(batch.people)]
-
-    def _readings(self) -> list[list[int] | None]:
-        """The keypoint orders a person's starts are tried in: as detected (None), then each of
-        `init.swap_hypotheses`' swaps (a person's own `hypothesis`, a track's warm start, in each too: the
-        fit it came from may have read a detector's swap)."""
-        return [None] + [swapped_order([group]) for group in self.config.init.swap_hypotheses]
 
     def _refine(self, trial: Batch, iterations: int) -> torch.Tensor:
         """`iterations` of the built-in init's refinement of `trial`'s state, in place; (B,) final losses

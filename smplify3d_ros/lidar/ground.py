@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from smplify3d_ros.geometry import unit
 from smplify3d_ros.lidar.config import ExtractionConfig
 
 CAMERA_UP = np.array([0.0, -1.0, 0.0])  # up in the camera optical frame (y points down)
@@ -40,12 +41,7 @@ class GroundPlane:
 
 def fallback_ground(config: ExtractionConfig, up: np.ndarray = CAMERA_UP) -> GroundPlane:
     """The height band: a flat floor across `up` (camera frame), the configured height below the camera."""
-    return GroundPlane(_unit(up), config.ground_fallback_camera_height_m, 0, False)
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    v = np.asarray(v, dtype=np.float64).reshape(3)
-    return v / np.linalg.norm(v)
+    return GroundPlane(unit(np.asarray(up, np.float64).reshape(3)), config.ground_fallback_camera_height_m, 0, False)
 
 
 def _plausible(normals: np.ndarray, offsets: np.ndarray, config: ExtractionConfig, up: np.ndarray) -> np.ndarray:
@@ -76,7 +72,7 @@ def _support(points: np.ndarray, normals: np.ndarray, offsets: np.ndarray, thres
 def fit_ground(points: np.ndarray, config: ExtractionConfig, up: np.ndarray = CAMERA_UP) -> GroundPlane:
     """Ground plane of (N, 3) camera-frame points, its normal within `ground_max_tilt_deg` of `up` (the
     camera frame's expected up direction), or the fallback band when none is supported."""
-    up = _unit(up)
+    up = unit(np.asarray(up, np.float64).reshape(3))
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     horizontal = np.hypot(points[:, 0], points[:, 2])
     points = points[horizontal <= config.ground_max_range_m]

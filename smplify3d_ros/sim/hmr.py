@@ -26,17 +26,13 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from smplify3d_ros.body.joints import BODY_JOINTS, JOINT_CHILD, JOINT_INDEX, JOINT_PARENT
+from smplify3d_ros.geometry import unit
 from smplify3d_ros.sim.config import HmrConfig
 from smplify3d_ros.types import BodyParams
 
 
 def _rot(rotvec: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(rotvec).as_matrix()
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v)
-    return v / n if n > 1e-12 else np.zeros_like(v)
 
 
 def bone_length_sum(joints: np.ndarray, pelvis: np.ndarray) -> float:
@@ -75,7 +71,7 @@ def perturb_pose(
         child = JOINT_CHILD[name]
         if child is not None:
             bone = joints[JOINT_INDEX[child]] - joints[i]
-            axis_cam = _unit(np.cross(bone, _unit(joints[i])))  # swings the bone along the ray
+            axis_cam = unit(np.cross(bone, unit(joints[i])))  # swings the bone along the ray
             if np.any(axis_cam):
                 axis_local = parent_rot.T @ axis_cam
                 angle = np.deg2rad(rng.normal(0.0, cfg.pose_depth_sigma_deg))
@@ -83,7 +79,7 @@ def perturb_pose(
         pose[i] = Rotation.from_matrix(delta @ local).as_rotvec()
     pelvis = params.transl
     body_up = root @ np.array([0.0, 1.0, 0.0])
-    tilt_axis = _unit(np.cross(body_up, _unit(pelvis)))
+    tilt_axis = unit(np.cross(body_up, unit(pelvis)))
     yaw = _rot(body_up * np.deg2rad(rng.normal(0.0, cfg.root_yaw_sigma_deg)))
     tilt = _rot(tilt_axis * np.deg2rad(rng.normal(0.0, cfg.root_tilt_sigma_deg)))
     root_orient = Rotation.from_matrix(tilt @ yaw @ root).as_rotvec()
