@@ -20,15 +20,19 @@ def _fitter(model, **init) -> Fitter:
     return Fitter(load_config(overrides={"fitting": {"init": init}}).fitting, model)
 
 
-def _walker_from_behind(model, rng, distance: float = 5.0, n_points: int = 250):
-    """A person `distance` m out walking away from the camera, mid-stride (left thigh forward, right
-    back), the LiDAR's `n_points` over the surface turned to the sensor; perfect keypoints."""
+def _mid_stride(model) -> np.ndarray:
+    """A walker's pose mid-stride: left thigh forward, right back."""
     angles = torch.zeros(1, len(model.joint_names), 3, dtype=torch.float64)
     for name, degrees in (("left_hip", 30.0), ("right_hip", -20.0), ("left_knee", 10.0), ("right_knee", 30.0)):
         angles[0, model.joint_names.index(name), 0] = np.deg2rad(degrees)
-    pose = model.anatomical_to_pose(angles, from_neutral=True)[0].numpy()
+    return model.anatomical_to_pose(angles, from_neutral=True)[0].numpy()
+
+
+def _walker_from_behind(model, rng, distance: float = 5.0, n_points: int = 250):
+    """A person `distance` m out walking away from the camera, mid-stride (left thigh forward, right
+    back), the LiDAR's `n_points` over the surface turned to the sensor; perfect keypoints."""
     K = default_intrinsics()
-    person = make_person(model, rng, K, distance, np.pi, n_points, 0.005, 0.0, pose=pose)
+    person = make_person(model, rng, K, distance, np.pi, n_points, 0.005, 0.0, pose=_mid_stride(model))
     return person.observation, K, model.posed([person.truth])[0]
 
 
@@ -81,3 +85,16 @@ def test_shoulders_a_detector_swapped_start_from_the_heading_they_give_when_swap
               f"{1000 * np.linalg.norm(fit.keypoints3d[shoulders] - body.keypoints3d[shoulders], axis=1).mean():.0f}")
     assert FLAG_SWAPPED_KEYPOINTS in flags[1]
     assert error[1] < 0.06 and error[0] > 1.5 * error[1], error
+
+
+def test_a_tracked_start_is_tried_in_the_reading_it_projects_closest_to(anny_model, rng):
+    """A person's own start (a track's warm start) is one row, not one per reading: the reading its
+    projected joints match, here the true body against a detection with the legs swapped."""
+    K = default_intrinsics()
+    person = make_person(anny_model, rng, K, 5.0, np.pi, 250, 0.005, 0.0, pose=_mid_stride(anny_model))
+    obs, start = person.observation, person.truth
+    fitter = _fitter(anny_model, swap_hypotheses=["arms", "legs"])
+    assert fitter._reading_of(start, obs.keypoints, K) is None
+    swapped = obs.keypoints[swapped_order(["legs"])]
+    assert fitter._reading_of(start, swapped, K) == swapped_order(["legs"])
+    assert _fitter(anny_model, swap_hypotheses=[])._reading_of(start, swapped, K) is None

@@ -147,8 +147,8 @@ class Fitter:
         self._bent_start_pose = self._builtin_start_pose(self.config.init.start_trunk_pitch_deg)
         self._keypoints_only = torch.zeros(1, dtype=torch.long, device=self.device)
         # the keypoint orders every person's starts are tried in: as detected (None), then each of
-        # `init.swap_hypotheses`' swaps (a person's own `hypothesis`, a track's warm start, in each too: the
-        # fit it came from may have read a detector's swap)
+        # `init.swap_hypotheses`' swaps (a person's own `hypothesis`, a track's warm start, in the one it
+        # projects closest to: `_reading_of`)
         self._readings: list[list[int] | None] = [None] + [swapped_order([group])
                                                           for group in config.init.swap_hypotheses]
         self.part_of_face_np = self.model.part_of_face.cpu().numpy()
@@ -256,7 +256,7 @@ class Fitter:
         person with LiDAR points, for each of `init.swap_hypotheses`' left/right keypoint groups the best
         guess of the detection read with that group swapped (a detector's swap; a swapped shoulder or hip
         pair turns the heading read from it), then the person's own `hypothesis` (a track's warm start),
-        if any, read as detected and swapped alike."""
+        if any, in the reading it projects closest to (`_reading_of`)."""
         cfg = self.config
         mean_shape = self.model.mean_shape().cpu().double().numpy()
         K = batch.K.cpu().double().numpy()
@@ -296,15 +296,34 @@ class Fitter:
                                                           root, pelvis))
                     batch.readings[i].append(order)
             if p.hypothesis is not None and p.hypothesis.model == self.model.name:
-                for order in self._readings:
-                    batch.hypotheses[i].append(p.hypothesis.copy())
-                    batch.readings[i].append(order)
+                batch.hypotheses[i].append(p.hypothesis.copy())
+                batch.readings[i].append(self._reading_of(p.hypothesis, p.keypoints, K))
             params.append(batch.hypotheses[i][0])
             batch.builtin[i] = True
             if batch.use_lidar[i]:
                 depth = float(batch.hypotheses[i][0].transl[2])
                 batch.keypoint_depth[i] = limb_depth_targets(p.keypoints, K, p.points, depth, cfg.init)
         batch.state = self._placed_state(params, batch.builtin)
+
+    def _reading_of(self, params: BodyParams, keypoints: np.ndarray, K: np.ndarray) -> list[int] | None:
+        """The reading of a detection (17, 3) that a fitted body (a track's warm start) projects closest
+        to: one of `init.swap_hypotheses`' swaps where its robust reprojection cost is below
+        `init.swap_hypothesis_margin` of the as-detected reading's, else as detected (None). The fit it
+        came from may have read a detector's swap; trying it in every reading would cost a row each."""
+        if len(self._readings) == 1:
+            return None
+        out = self._forward(self._placed_state([params], np.ones(1, dtype=bool)), self._keypoints_only)
+        projected = project(out.keypoints, self._tensor([K]))[0].cpu().double().numpy()
+        sigma2 = self.config.optimizer.weights.sigma_px ** 2
+
+        def cost(order: list[int] | None) -> float:
+            read = keypoints if order is None else keypoints[order]
+            r2 = ((projected - read[:, :2]) ** 2).sum(1)
+            return float((read[:, 2] * r2 / (r2 + sigma2)).sum())
+
+        costs = [cost(order) for order in self._readings]
+        best = 1 + int(np.argmin(costs[1:]))
+        return self._readings[best] if costs[best] < self.config.init.swap_hypothesis_margin * costs[0] else None
 
     def _placed_state(self, params: list[BodyParams], builtin: np.ndarray) -> FitState:
         """The state of these parameters, built-in estimates moved so that their hip midpoint is where
@@ -400,7 +419,7 @@ class Fitter:
         trial, kept = self._compete(batch)
         offsets = np.cumsum([0] + [len(h) for h in batch.hypotheses])
         return [i in kept and p.hypothesis is not None and p.hypothesis.model == self.model.name
-                and kept[i][0] >= offsets[i + 1] - len(self._readings)  # a person's own start: the last rows
+                and kept[i][0] == offsets[i + 1] - 1  # a person's own start: the last row
                 for i, p in enumerate(batch.people)]
 
     def _refine(self, trial: Batch, iterations: int) -> torch.Tensor:
