@@ -69,6 +69,26 @@ def test_anny_subset_forward_matches_the_full_one(anny_model):
         assert torch.allclose(reference, part, atol=1e-4, rtol=1e-4)
 
 
+def test_anny_rows_of_many_hypotheses_are_rows_of_their_shapes_meshes(anny_model):
+    """Per-row vertex sets of a few shapes over many rows (the built-in init's hypotheses) are shaped
+    as whole meshes, one per shape, and their rows taken: the same vertices as each row posed alone."""
+    g = torch.Generator().manual_seed(1)
+    dt = anny_model.anat_frames.dtype
+    J, n = len(BODY_JOINTS), 3000
+    shapes = 0.5 + 0.3 * (torch.rand(2, len(anny_model.shape_names), generator=g, dtype=dt) - 0.5)
+    shape = shapes[torch.tensor([0, 1, 0, 0, 1, 1, 0, 1, 0, 0])]  # 10 rows, 2 shapes: 2 meshes < 30,000 rows
+    B = len(shape)
+    pose = 0.4 * (torch.rand(B, J, 3, generator=g, dtype=dt) - 0.5)
+    root = torch.zeros(B, 3, dtype=dt)
+    transl = torch.tensor([0.0, 0.0, 5.0], dtype=dt).expand(B, 3)
+    index = torch.stack([torch.randperm(13718, generator=g)[:n] for _ in range(B)])
+    assert anny_model._rows_of_meshes(anny_model._coefficients(shape), anny_model._subset(index)) is not None
+    together = anny_model(shape, pose, root, transl, index).vertices
+    for b in range(B):
+        alone = anny_model(shape[b:b + 1], pose[b:b + 1], root[b:b + 1], transl[b:b + 1], None).vertices[0, index[b]]
+        assert torch.allclose(together[b], alone, atol=1e-6), b
+
+
 def test_anny_parts_cover_every_part(anny_model):
     parts = anny_model.part_of_face.numpy()
     assert set(parts[parts >= 0]) == set(range(len(PART_NAMES)))

@@ -394,6 +394,21 @@ class AnnyBody(BodyModel):
         kp_rest = rest_vertices[:, : len(self.kp_support)]
         self._held_rest = (shape.detach().clone(), full, kp_rest, rest_bone_poses, basis)
 
+    def _rows_of_meshes(self, coeffs: torch.Tensor, subset: _VertexSubset) -> torch.Tensor | None:
+        """A per-row subset's rest vertices (B, n, 3) as rows of whole meshes, one per distinct shape, where
+        those hold fewer vertices than the subset (the built-in init's hypotheses of one person: a dozen
+        rows of 1,500 vertices, one shape): slicing the subset's rows of 136 blend shapes moves several
+        times the data that shaping the whole mesh reads. None where it does not pay, or with gradients."""
+        if coeffs.requires_grad:
+            return None
+        distinct, which = torch.unique(coeffs, dim=0, return_inverse=True)
+        n_vertices = self.anny.template_vertices.shape[0]
+        if len(distinct) * n_vertices >= subset.key.numel():
+            return None
+        meshes = self.anny.template_vertices + torch.einsum("bc,cnd->bnd", distinct, self.anny.blendshapes)
+        flat = (which[:, None] * n_vertices + subset.key).reshape(-1)
+        return meshes.reshape(-1, 3)[flat].reshape(*subset.key.shape, 3)
+
     def _rest_subset(self, coeffs: torch.Tensor, subset: _VertexSubset) -> tuple[torch.Tensor, torch.Tensor]:
         """Rest vertices (keypoint support, then `subset`'s) and rest bone poses for blend-shape `coeffs`.
 
@@ -412,9 +427,10 @@ class AnnyBody(BodyModel):
         from anny.skinning.skinning import apply_linear_blendshape
 
         kp = apply_linear_blendshape(self.kp_template, self.kp_blendshapes, coeffs)
-        if subset.per_row:
+        rows = self._rows_of_meshes(coeffs, subset) if subset.per_row else None
+        if rows is None and subset.per_row:
             rows = subset.template + torch.einsum("bc,cbnd->bnd", coeffs, subset.blendshapes)
-        else:
+        elif rows is None:
             rows = subset.template + torch.einsum("bc,cnd->bnd", coeffs, subset.blendshapes)
         heads = apply_linear_blendshape(anny.template_bone_heads, anny.bone_heads_blendshapes, coeffs)
         M = anny.bone_template_orientation_matrices[None] + torch.einsum(
