@@ -427,11 +427,10 @@ class AnnyBody(BodyModel):
         from anny.skinning.skinning import apply_linear_blendshape
 
         kp = apply_linear_blendshape(self.kp_template, self.kp_blendshapes, coeffs)
-        rows = self._rows_of_meshes(coeffs, subset) if subset.per_row else None
-        if rows is None and subset.per_row:
-            rows = subset.template + torch.einsum("bc,cbnd->bnd", coeffs, subset.blendshapes)
-        elif rows is None:
+        if not subset.per_row:
             rows = subset.template + torch.einsum("bc,cnd->bnd", coeffs, subset.blendshapes)
+        elif (rows := self._rows_of_meshes(coeffs, subset)) is None:
+            rows = subset.template + torch.einsum("bc,cbnd->bnd", coeffs, subset.blendshapes)
         heads = apply_linear_blendshape(anny.template_bone_heads, anny.bone_heads_blendshapes, coeffs)
         M = anny.bone_template_orientation_matrices[None] + torch.einsum(
             "ba,akij->bkij", coeffs, anny.bone_orientation_blendshapes)
