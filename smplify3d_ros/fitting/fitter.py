@@ -27,7 +27,7 @@ from smplify3d_ros.fitting import init as initializer
 from smplify3d_ros.fitting.config import FittingConfig
 from smplify3d_ros.fitting.icp import align_mesh_to_points
 from smplify3d_ros.fitting.limbs import limb_depth_targets
-from smplify3d_ros.fitting.losses import nearest_sq_distances, project
+from smplify3d_ros.fitting.losses import nearest_sq_distances, project, reprojection_loss
 from smplify3d_ros.fitting.options import FitOptions
 from smplify3d_ros.fitting.problem import FitProblem, FitState
 from smplify3d_ros.fitting.stages import StageSpec, optimize, run_stage
@@ -307,21 +307,17 @@ class Fitter:
 
     def _reading_of(self, params: BodyParams, keypoints: np.ndarray, K: np.ndarray) -> list[int] | None:
         """The reading of a detection (17, 3) that a fitted body (a track's warm start) projects closest
-        to: one of `init.swap_hypotheses`' swaps where its robust reprojection cost is below
+        to: one of `init.swap_hypotheses`' swaps where its L_J (`reprojection_loss`) is below
         `init.swap_hypothesis_margin` of the as-detected reading's, else as detected (None). The fit it
         came from may have read a detector's swap; trying it in every reading would cost a row each."""
         if len(self._readings) == 1:
             return None
         out = self._forward(self._placed_state([params], np.ones(1, dtype=bool)), self._keypoints_only)
-        projected = project(out.keypoints, self._tensor([K]))[0].cpu().double().numpy()
-        sigma2 = self.config.optimizer.weights.sigma_px ** 2
-
-        def cost(order: list[int] | None) -> float:
-            read = keypoints if order is None else keypoints[order]
-            r2 = ((projected - read[:, :2]) ** 2).sum(1)
-            return float((read[:, 2] * r2 / (r2 + sigma2)).sum())
-
-        costs = [cost(order) for order in self._readings]
+        projected = project(out.keypoints, self._tensor([K]))
+        reads = [keypoints if order is None else keypoints[order] for order in self._readings]
+        costs = reprojection_loss(projected.expand(len(reads), -1, -1), self._tensor([r[:, :2] for r in reads]),
+                                  self._tensor([r[:, 2] for r in reads]), self.config.optimizer.weights.sigma_px)
+        costs = costs.cpu().double().numpy()
         best = 1 + int(np.argmin(costs[1:]))
         return self._readings[best] if costs[best] < self.config.init.swap_hypothesis_margin * costs[0] else None
 
