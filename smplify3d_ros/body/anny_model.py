@@ -390,9 +390,13 @@ class AnnyBody(BodyModel):
         """Keep every rest vertex of a shape asked for with further vertex sets (`_worth_holding`: a warm
         fit's held shape, whose stages, checks and outputs pose several sets): later sets are rows of it,
         not a new shaping (136 blend shapes sliced and applied)."""
-        full = self.anny.template_vertices + torch.einsum("bc,cnd->bnd", coeffs, self.anny.blendshapes)
+        full = self._meshes(coeffs)
         kp_rest = rest_vertices[:, : len(self.kp_support)]
         self._held_rest = (shape.detach().clone(), full, kp_rest, rest_bone_poses, basis)
+
+    def _meshes(self, coeffs: torch.Tensor) -> torch.Tensor:
+        """Every rest vertex (B, V, 3) of blend-shape `coeffs` (B, C)."""
+        return self.anny.template_vertices + torch.einsum("bc,cnd->bnd", coeffs, self.anny.blendshapes)
 
     def _rows_of_meshes(self, coeffs: torch.Tensor, subset: _VertexSubset) -> torch.Tensor | None:
         """A per-row subset's rest vertices (B, n, 3) as rows of whole meshes, one per distinct shape, where
@@ -405,7 +409,7 @@ class AnnyBody(BodyModel):
         n_vertices = self.anny.template_vertices.shape[0]
         if len(distinct) * n_vertices >= subset.key.numel():
             return None
-        meshes = self.anny.template_vertices + torch.einsum("bc,cnd->bnd", distinct, self.anny.blendshapes)
+        meshes = self._meshes(distinct)
         flat = (which[:, None] * n_vertices + subset.key).reshape(-1)
         return meshes.reshape(-1, 3)[flat].reshape(*subset.key.shape, 3)
 
