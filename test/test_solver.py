@@ -14,7 +14,7 @@ from smplify3d_ros.fitting import solver
 from smplify3d_ros.fitting.fitter import Fitter
 from smplify3d_ros.fitting.options import FitOptions
 from smplify3d_ros.fitting.problem import FitState
-from smplify3d_ros.fitting.stages import Pruning, StageSpec, run_stage, stage_loss
+from smplify3d_ros.fitting.stages import StageSpec, run_stage, stage_loss
 
 
 def _random_body(model, B=2, seed=0):
@@ -121,34 +121,6 @@ def test_lm_reaches_in_ten_steps_what_adam_does_not(anny_model):
         initial = float(stage_loss(anny_model, start, problem, spec, profile)[0])
     print(losses, initial)
     assert losses["lm"] < 0.5 * losses["adam"] < initial
-
-
-def test_pruned_rows_stop_where_they_were_and_the_others_go_on_as_without_pruning(anny_model):
-    fitter, problem, start, _ = _problem_and_start(anny_model)
-    problem = problem.take(torch.tensor([0, 0, 0]))  # one person, three competing starts
-    state = start.take(torch.tensor([0, 0, 0]))
-    with torch.no_grad():
-        state.root_orient[1] += torch.tensor([0.0, np.pi, 0.0])  # turned round: far behind the others
-        state.pose[2] += 0.05
-    spec = StageSpec("init", ("pose", "root_orient", "transl"), 4, None, 100.0, 600.0, priors=True, hold=False)
-    profile = dataclasses.replace(fitter.config.optimizer, early_stop_rel_tol=0.0)
-
-    def run(iterations, pruning=None):
-        out = state.clone()
-        _, loss = run_stage(anny_model, out, problem, dataclasses.replace(spec, iterations=iterations), profile,
-                            1000.0, torch.zeros(3, dtype=torch.bool), pruning)
-        return out, loss
-
-    whole, whole_loss = run(4)
-    after_one, _ = run(1)
-    pruned, pruned_loss = run(4, Pruning(1, lambda loss: loss <= 2.0 * loss.min()))
-    assert torch.isinf(pruned_loss[1]) and torch.isfinite(pruned_loss[[0, 2]]).all()
-    assert torch.allclose(pruned.root_orient[1], after_one.root_orient[1])
-    assert torch.allclose(pruned.pose[1], after_one.pose[1])
-    assert not torch.allclose(pruned.pose[1], whole.pose[1])  # the whole run moved it on
-    for name in ("pose", "root_orient", "transl"):
-        assert torch.allclose(getattr(pruned, name)[[0, 2]], getattr(whole, name)[[0, 2]], atol=1e-4)
-    assert torch.allclose(pruned_loss[[0, 2]], whole_loss[[0, 2]], rtol=1e-4)
 
 
 def test_lm_never_ends_worse_and_freezes_a_non_finite_person(anny_model):

@@ -95,8 +95,6 @@ class InitConfig:
     limb_depth_sigma: float
     refine_iterations: int
     hypothesis_iterations: int
-    hypothesis_prune_after: int
-    hypothesis_prune_ratio: float
     final_hypotheses: int
     final_hypothesis_ratio: float
     final_hypothesis_margin: float
@@ -143,8 +141,6 @@ class InitConfig:
         require(not unknown, f"swap_hypotheses: unknown keypoint groups {unknown}; known: {list(SWAP_GROUPS)}")
         require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")
         require(self.hypothesis_iterations >= 0, "hypothesis_iterations must be >= 0 (at most refine_iterations run)")
-        require(self.hypothesis_prune_after >= 0, "hypothesis_prune_after must be >= 0 (0: no pruning)")
-        require(self.hypothesis_prune_ratio >= 1, "hypothesis_prune_ratio must be >= 1")
         require(self.heading_hypotheses >= 1, "heading_hypotheses must be >= 1")
         require(self.final_hypotheses >= 1, "final_hypotheses must be >= 1")
         require(self.final_hypothesis_ratio >= 1, "final_hypothesis_ratio must be >= 1")

@@ -30,7 +30,7 @@ from smplify3d_ros.fitting.limbs import limb_depth_targets
 from smplify3d_ros.fitting.losses import nearest_sq_distances, project, reprojection_loss
 from smplify3d_ros.fitting.options import FitOptions
 from smplify3d_ros.fitting.problem import FitProblem, FitState
-from smplify3d_ros.fitting.stages import Pruning, StageSpec, optimize, run_stage
+from smplify3d_ros.fitting.stages import StageSpec, optimize, run_stage
 from smplify3d_ros.fitting.visibility import occluded_parts, visible_vertices
 from smplify3d_ros.geometry import move_body, transform
 from smplify3d_ros.keypoints import PART_NAMES, swapped_order
@@ -387,21 +387,10 @@ class Fitter:
                 self._read_in_order(trial, r, order)
         trial.state = self._placed_state([h for i in range(batch.size) for h in batch.hypotheses[i]],
                                          np.ones(len(rows), dtype=bool))
+        loss = self._refine(trial, min(init.hypothesis_iterations, init.refine_iterations))
+        loss = loss.cpu().double().numpy()
         swapped = np.array([order is not None for order in trial.readings])
-        margin = torch.as_tensor(np.where(swapped, init.swap_hypothesis_margin, 1.0), device=self.device)
-        owner = torch.as_tensor(rows, device=self.device)
-
-        def leading(loss: torch.Tensor) -> torch.Tensor:  # rows within the ratio of their person's best
-            scored = loss.double() / margin  # a swapped reading must do clearly better
-            best = torch.full((batch.size,), float("inf"), dtype=scored.dtype, device=scored.device)
-            best = best.scatter_reduce(0, owner, scored, "amin")
-            return scored <= init.hypothesis_prune_ratio * best[owner]
-
-        iterations = min(init.hypothesis_iterations, init.refine_iterations)
-        pruning = Pruning(init.hypothesis_prune_after, leading) \
-            if 0 < init.hypothesis_prune_after < iterations and len(rows) > batch.size else None
-        loss = self._refine(trial, iterations, pruning)
-        loss = (loss.double() / margin).cpu().numpy()
+        loss[swapped] /= init.swap_hypothesis_margin  # a swapped reading must do clearly better
         kept = {}
         for i in np.flatnonzero(batch.builtin):
             mine = np.flatnonzero(rows == i)
@@ -429,9 +418,9 @@ class Fitter:
                 and kept[i][0] == offsets[i + 1] - 1  # a person's own start: the last row
                 for i, p in enumerate(batch.people)]
 
-    def _refine(self, trial: Batch, iterations: int, pruning: Pruning | None = None) -> torch.Tensor:
+    def _refine(self, trial: Batch, iterations: int) -> torch.Tensor:
         """`iterations` of the built-in init's refinement of `trial`'s state, in place; (B,) final losses
-        (inf where diverged, or dropped by `pruning`)."""
+        (inf where diverged)."""
         init = self.config.init
         problem = self._problem(trial, init.refine_max_vertices)  # coarse: the start is decimetres off
         params = ("pose", "root_orient", "transl") if init.refine_chamfer > 0 else ("pose", "root_orient")
@@ -440,7 +429,7 @@ class Fitter:
                          keypoint_depth_sigma=init.limb_depth_sigma)
         diverged = torch.zeros(trial.size, dtype=torch.bool, device=self.device)
         _, loss = run_stage(self.model, trial.state, problem, spec, _refine_profile(self.config),
-                            self.config.divergence_factor, diverged, pruning)
+                            self.config.divergence_factor, diverged)
         return torch.where(diverged | ~torch.isfinite(loss), torch.full_like(loss, float("inf")), loss)
 
     def _align_to_points(self, batch: Batch) -> None:

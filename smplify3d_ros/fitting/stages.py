@@ -7,7 +7,6 @@ flagged, without stopping the others.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import torch
@@ -34,15 +33,6 @@ class StageSpec:
     keypoint_depth_weight: float = 0.0  # weight of the limb-depth targets (`FitProblem.keypoint_depth`)
     keypoint_depth_sigma: float = 0.1  # m, their Geman-McClure scale
     points_gain: bool = False  # λ_3D² × each person's `FitProblem.lidar_gain` (the stages that fit pose and place)
-
-
-@dataclass(frozen=True)
-class Pruning:
-    """Rows a stage drops part-way (the built-in init's competing hypotheses): after `after` iterations,
-    `keep` maps the rows' (B,) losses to the (B,) bool rows that go on."""
-
-    after: int
-    keep: Callable[[torch.Tensor], torch.Tensor]
 
 
 @dataclass
@@ -162,14 +152,12 @@ def run_stage(
     profile: OptimizerProfile,
     divergence_factor: float,
     diverged: torch.Tensor,
-    pruning: Pruning | None = None,
 ) -> tuple[int, torch.Tensor]:
     """Optimize `stage.params` of `state` in place with Adam; returns (iterations run, final (B,) loss).
 
     Each person keeps the best finite state the stage reached. `diverged` (B,) is updated in place:
     a person whose loss becomes non-finite or exceeds `divergence_factor` times its start is frozen.
     A stage with L_free casts the beams against the body as it starts (`FitProblem.cast_beams`).
-    `pruning` (Levenberg-Marquardt only) drops rows part-way.
     """
     if solver.uses_free_space(stage, problem, profile):
         problem.blocked = problem.cast_beams(state)
@@ -178,7 +166,7 @@ def run_stage(
             return 0, stage_loss(model, state, problem, stage, profile)
     body = _Translated(model, state, problem) if stage.params == ("transl",) else None
     if profile.optimizer == "lm":
-        return _run_lm(model, state, problem, stage, profile, diverged, body, pruning)
+        return _run_lm(model, state, problem, stage, profile, diverged, body)
     tensors = [getattr(state, n) for n in stage.params]
     for t in tensors:
         t.requires_grad_(True)
@@ -230,16 +218,12 @@ def run_stage(
 
 def _run_lm(
     model: BodyModel, state: FitState, problem: FitProblem, stage: StageSpec, profile: OptimizerProfile,
-    diverged: torch.Tensor, body: _Translated | None, pruning: Pruning | None = None,
+    diverged: torch.Tensor, body: _Translated | None,
 ) -> tuple[int, torch.Tensor]:
     """`run_stage` with Levenberg-Marquardt steps (`fitting.solver`): a step is kept only where it lowers
     the person's exact stage loss, so nobody ends worse than they started; a non-finite start freezes
     the person (flagged diverged). Each person stops once its loss fell by less than `early_stop_rel_tol`
-    over the last `early_stop_patience` iterations, or once no step with a bearable damping lowers it.
-    With `pruning`, the rows it drops after `pruning.after` iterations stay where they are, loss inf, and
-    the others go on as a smaller batch (a stopped row still costs its share of every step; a dropped
-    one does not)."""
-    full, kept = state, None  # with pruning: the whole batch, and the rows that go on in `state`
+    over the last `early_stop_patience` iterations, or once no step with a bearable damping lowers it."""
     layout = solver.Layout.of(model, stage.params, state.pose.device)
     # Each candidate is linearized where its loss is taken: an accepted step's linearization is the next
     # iteration's (one body pass per iteration instead of two), its neighbour search the loss's. A
@@ -253,13 +237,6 @@ def _run_lm(
     history = [cost]  # each iteration's loss, accepted steps or not
     iterations = 0
     for _ in range(stage.iterations):
-        if pruning is not None and kept is None and iterations == pruning.after and body is None:
-            keep = pruning.keep(cost) & torch.isfinite(cost)
-            if not bool(keep.all()):
-                kept = torch.nonzero(keep).squeeze(1)
-                state, problem, here = state.take(kept), problem.take(kept), None
-                cost, damping, active = cost[kept], damping[kept], active[kept]
-                history = [h[kept] for h in history]
         if not active.any():
             break
         system = solver.normal_equations(model, state, problem, stage, profile, layout, body, here)
@@ -282,10 +259,6 @@ def _run_lm(
             before = history[-1 - profile.early_stop_patience]
             active &= before - cost >= profile.early_stop_rel_tol * before.abs()
         active &= damping < solver.DAMPING_MAX
-    if kept is not None:
-        full.copy_rows_from_subset(state, kept)
-        cost = torch.full((len(full.pose),), float("inf"), dtype=cost.dtype, device=cost.device).index_copy(
-            0, kept, cost)
     return iterations, cost
 
 
