@@ -39,11 +39,15 @@ class PeopleConfig:
     max_people: int  # people fitted per frame, largest keypoint boxes first
     min_keypoints: int  # people with fewer usable keypoints are not fitted
     keypoint_margin: float  # keypoints this far outside the image (fraction of its size) are missing
+    score_level: float  # a plainly seen joint's score; a less confident detector's frames scale up to it (0: never)
+    score_max_gain: float  # ... by at most this factor
 
     def __post_init__(self) -> None:
         require(1 <= self.max_people <= 100, "max_people must be in [1, 100]")
         require(1 <= self.min_keypoints <= 17, "min_keypoints must be in [1, 17]")
         require(0.0 <= self.keypoint_margin <= 10.0, "keypoint_margin must be in [0, 10]")
+        require(0.0 <= self.score_level <= 1.0, "score_level must be in [0, 1] (0: scores as given)")
+        require(self.score_max_gain >= 1.0, "score_max_gain must be >= 1")
 
 
 @dataclass

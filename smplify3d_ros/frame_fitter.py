@@ -82,6 +82,23 @@ class _PendingRefresh:
     lost: bool = False  # a lost warm fit's cold refit (or a refresh whose person's warm fit was lost since)
 
 
+def calibrated_scores(scores: np.ndarray, level: float, max_gain: float) -> np.ndarray:
+    """Keypoint scores on the scale of a detector that scores plainly seen joints `level` or more (the
+    simulated detector the package is tuned on scores them 0.9, as ViTPose-class detectors do). A frame
+    whose detected scores' upper quartile is below `level` (a less confident detector, e.g. one that
+    scores seen joints 0.7) has every score divided by that quartile over `level`, at most `max_gain`
+    times, capped at 1; a confident detector's scores stay as they are. Every score threshold of the path
+    (selection, extraction, initializer, the image term's visibility) then means what it was tuned to
+    mean. Read from everyone in the frame, not per person: a mostly hidden person scores most joints low,
+    and read alone would have their guessed joints taken for seen ones. `level` 0: scores as given."""
+    scores = np.asarray(scores, np.float64)
+    detected = scores[np.isfinite(scores) & (scores > 0)]
+    if level <= 0 or len(detected) == 0:
+        return scores
+    gain = min(level / max(float(np.quantile(detected, 0.75)), 1e-6), max_gain)
+    return np.minimum(scores * gain, 1.0) if gain > 1.0 else scores
+
+
 def _box_area(uv: np.ndarray) -> float:
     if len(uv) == 0:
         return 0.0
@@ -192,7 +209,8 @@ class FrameFitter:
         self._background, self._pending, self._jobs = None, {}, {}
 
     def select_people(self, frame: Frame) -> tuple[Frame, Counter]:
-        """Usable people only: far out-of-image keypoints become missing, people with too few keypoints
+        """Usable people only, their scores calibrated (`calibrated_scores`, `people.score_level`): far
+        out-of-image keypoints become missing, people with too few keypoints
         and beyond `people.max_people` (smallest boxes) are left out (counted by reason), people without a
         detector id get one (free ids, left to right, so that colours stay put while people do) unless a
         tracker will associate them."""
@@ -201,6 +219,7 @@ class FrameFitter:
             return frame, dropped
         kp = frame.keypoints.astype(np.float64).copy()
         cam, sel = frame.camera, self.config.people
+        kp[..., 2] = calibrated_scores(kp[..., 2], sel.score_level, sel.score_max_gain)
         conf = self.config.fitting.init.keypoint_conf
         mx, my = sel.keypoint_margin * cam.width, sel.keypoint_margin * cam.height
         u, v = kp[..., 0], kp[..., 1]

@@ -255,6 +255,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "tracking.lost_face_offset_m": (0, _INF),
     # people
     "people.max_people": (1, 100), "people.min_keypoints": (1, 17), "people.keypoint_margin": (0, 10),
+    "people.score_level": (0, 1), "people.score_max_gain": (1, _INF),
     # fitting
     "fitting.body.smpl_num_betas": (1, _INF), "fitting.body.anny_shape_sigma": (0, _INF),
     "fitting.body.anny_keypoint_support": (0, _INF), "fitting.body.shape_bound_weight": (0, _INF),
