@@ -210,10 +210,10 @@ class FrameFitter:
 
     def select_people(self, frame: Frame) -> tuple[Frame, Counter]:
         """Usable people only, their scores calibrated (`calibrated_scores`, `people.score_level`): far
-        out-of-image keypoints become missing, people with too few keypoints
-        and beyond `people.max_people` (smallest boxes) are left out (counted by reason), people without a
-        detector id get one (free ids, left to right, so that colours stay put while people do) unless a
-        tracker will associate them."""
+        out-of-image keypoints become missing, people with too few keypoints and beyond
+        `people.max_people` (smallest boxes) are left out (counted by reason), people without a detector
+        id get one (free ids, left to right, so that colours stay put while people do) unless a tracker
+        will associate them."""
         dropped: Counter = Counter()
         if len(frame.keypoints) == 0:
             return frame, dropped
