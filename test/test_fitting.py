@@ -434,3 +434,26 @@ def test_another_hypothesis_replaces_the_leader_only_by_the_margin_and_diverged_
     fits[3] = fit(1, float("nan"), {FLAG_DIVERGED})
     fits[4] = fit(1, 7.0)
     assert _pick_hypotheses(fits, owner, 3, margin=0.3)[1] is fits[4]  # a diverged leader gives way
+
+
+def test_a_person_whose_every_part_scores_under_the_lidar_threshold_is_held_at_their_points_depth(anny_model):
+    """`visibility.keypoint_conf_lidar` leaves parts scored under it out of L_3D. A person with points but
+    every part under it has no vertex for L_3D: fitted from the image, the points holding the depth, as a
+    few points do, not fitted as a LiDAR person whose depth nothing holds (a crowd seen from behind, scored
+    low by the detector, stood metres off with the threshold at 0.6)."""
+    K = default_intrinsics()
+    config = load_config(overrides={"fitting": {"visibility": {"keypoint_conf_lidar": 0.6}}})
+    fitter = Fitter(config.fitting, anny_model)
+    errors = []
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        sp = make_person(anny_model, rng, K, distance=10.0, yaw=rng.uniform(-1.0, 1.0), n_points=60,
+                         point_noise=0.02, keypoint_noise_px=2.0)
+        obs = sp.observation
+        obs.init = None
+        obs.keypoints[:, 2] = np.where(obs.keypoints[:, 2] > 0, 0.5, 0.0)  # seen, but under 0.6
+        assert len(obs.points) >= config.fitting.min_points
+        fit = fitter.fit([obs], K)[0]
+        assert FLAG_IMAGE_ONLY in fit.flags
+        errors.append(abs(fit.params.transl[2] - sp.truth.transl[2]))
+    assert max(errors) < 0.3, errors
