@@ -110,7 +110,7 @@ class FitQuality:
 
 
 # Flags a BodyFit may carry.
-FLAG_IMAGE_ONLY = "image_only"  # too few LiDAR points: fitted from the keypoints alone
+FLAG_IMAGE_ONLY = "image_only"  # too few LiDAR points, or no part scored for L_3D: fitted from the keypoints alone
 FLAG_DIVERGED = "diverged"  # a stage produced NaN or an exploding loss: best finite state returned
 FLAG_ICP_NOT_CONVERGED = "icp_not_converged"
 FLAG_EXTERNAL_INIT = "external_init"  # initialized from an upstream estimate
