@@ -206,8 +206,8 @@ class Fitter:
         # points, but every part scored under `visibility.keypoint_conf_lidar`: L_3D has no vertex to match
         # them to, and a body fitted as if it had would hold its depth by nothing but the image (a crowd
         # seen from behind, scored low, stood metres off); they still measure the depth, as a few points do
-        no_part = [options.use_visibility and bool(o[1].all()) for o in occlusion]
-        use_lidar = np.array([len(p.points) >= cfg.min_points and not none for p, none in zip(people, no_part)])
+        no_lidar_part = np.array([options.use_visibility and bool(o[1].all()) for o in occlusion])
+        use_lidar = np.array([len(p.points) >= cfg.min_points for p in people]) & ~no_lidar_part
         for i, p in enumerate(people):
             if not use_lidar[i]:
                 flags[i].add(FLAG_IMAGE_ONLY)
