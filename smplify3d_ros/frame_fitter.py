@@ -262,6 +262,7 @@ class FrameFitter:
             people.append(PersonObservation(
                 person_id=pid, keypoints=undistorted[i], bbox=np.asarray(person.bbox, dtype=np.float64),
                 points=person.points, init=frame.init_bodies.get(pid) if pid >= 0 else None, ground=ground,
+                depth_bound=float(person.depth_bound) if np.isfinite(person.depth_bound) else None,
             ))
         return people, frame.T_cam_lidar[:3, 3].copy()
 

@@ -93,6 +93,10 @@ class PersonObservation:
     # none), None: no prediction. A warm start (`init` at `predicted_pelvis`) is held near them by the
     # profile's `weights.joint_motion`
     predicted_keypoints: np.ndarray | None = None
+    # (m, camera z) the depth the scan says this person cannot lie beyond: the LiDAR's returns along the rays
+    # of their confident keypoints lie there (`lidar.extract.depth_bounds`); None: no such bound. The
+    # built-in start of a person without points is placed no farther
+    depth_bound: float | None = None
 
 
 @dataclass

@@ -15,6 +15,8 @@ from smplify3d_ros.fitting.init import (
     nearest_depth,
     pelvis_position,
     points_too_near,
+    scan_depth_bound,
+    size_depths,
     upright_root_orient,
 )
 from smplify3d_ros.fitting.losses import project
@@ -172,6 +174,34 @@ def test_an_occluders_points_are_not_taken_for_a_far_person(anny_model):
     fit = Fitter(off, anny_model).fit([obs], K)[0]
     assert FLAG_POINTS_TOO_NEAR not in fit.flags
     assert fit.joints[0, 2] < 0.5 * true_z, fit.joints[0]
+
+
+def test_the_scans_bound_holds_a_person_whose_size_cues_read_too_far(anny_model):
+    """A person 8 m out without points whose keypoints read half their size (as a crouch with the hips
+    hidden, or a mostly hidden body, does): every size cue puts them twice as far. The scan's returns
+    along their keypoints' rays (`depth_bound`, here 1 m past them) bound the start and the fit; without
+    the bound the fit stands near the size cues' 16 m. A bound nearer than the image allows
+    (`nearest_depth`: an occluder's surface, the keypoints guessed on it) is refused."""
+    config = load_config().fitting
+    obs, pelvis, K = _person_on_ground(anny_model)
+    true_z = float(pelvis[2])
+    kp = obs.keypoints.copy()
+    centre = kp[:, :2].mean(axis=0)
+    kp[:, :2] = centre + 0.5 * (kp[:, :2] - centre)  # half the size in the image
+    obs = dataclasses.replace(obs, keypoints=kp, bbox=np.array([*kp[:, :2].min(0), *kp[:, :2].max(0)]),
+                              points=obs.points[:0], ground=None)
+    assert min(size_depths(obs, K, config.init, whole_body=False)) > 1.7 * true_z
+    free = Fitter(config, anny_model).fit([obs], K)[0]
+    assert FLAG_IMAGE_ONLY in free.flags and free.joints[0, 2] > 1.5 * true_z, free.joints[0]
+    bounded = dataclasses.replace(obs, depth_bound=true_z + 1.0)
+    assert scan_depth_bound(bounded, K, config.init) == true_z + 1.0
+    assert estimate_depth(bounded, K, config.init, use_points=False) == true_z + 1.0
+    fit = Fitter(config, anny_model).fit([bounded], K)[0]
+    assert fit.params.transl[2] <= true_z + 1.05, fit.params.transl
+    occluder = dataclasses.replace(obs, depth_bound=0.3 * true_z)
+    assert occluder.depth_bound < nearest_depth(occluder, K, config.init)
+    assert scan_depth_bound(occluder, K, config.init) is None
+    assert estimate_depth(occluder, K, config.init, use_points=False) > 1.7 * true_z
 
 
 def test_a_persons_own_points_are_kept(anny_model):

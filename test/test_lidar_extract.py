@@ -254,6 +254,27 @@ def test_person_the_lidar_does_not_see():
     assert result.people[0].num_points <= 2
 
 
+def test_the_returns_along_a_persons_keypoint_rays_bound_their_depth():
+    """`PersonPoints.depth_bound`: where the camera sees a body, the LiDAR's returns along those rays are
+    the body or what lies behind it. A person 6 m out in front of a wall 7 m out: the bound lies at or
+    past them and no farther than the wall plus the margin, whether the LiDAR sees the person (dark
+    clothes: not) or not. Without returns there (open ground), or switched off, there is none."""
+    wall = Scene().ground().box((7.0, -6, 0), (7.3, 6, 3))
+    seen = Scene().ground().box((7.0, -6, 0), (7.3, 6, 3)).person(6.0, 0.3)
+    camera_z = 7.0 - CAMERA_IN_LIDAR[0]  # the wall's face, along the camera's axis
+    for scene in (seen, wall):
+        result, _, _ = run(scene, keypoints=seen.keypoints())
+        bound = result.people[0].depth_bound
+        assert 6.0 - CAMERA_IN_LIDAR[0] < bound <= camera_z + 0.1 + CONFIG.depth_bound_margin_m, bound
+    result, _, _ = run(Scene().ground(), keypoints=seen.keypoints())
+    assert np.isnan(result.people[0].depth_bound)
+    points_cam = transform_points(wall.scan(vlp16_rays())[0], t_cam_lidar())
+    off = extract_people(points_cam, seen.keypoints(), CAMERA, make_config(depth_bound_radius_deg=0.0))
+    assert np.isnan(off.people[0].depth_bound)
+    few = extract_people(points_cam, seen.keypoints(), CAMERA, make_config(depth_bound_min_keypoints=18))
+    assert np.isnan(few.people[0].depth_bound)  # 17 keypoints cannot give 18
+
+
 def test_two_people_side_by_side_touching():
     scene = Scene().ground().person(5.0, 0.33).person(5.0, -0.33)
     result, truth, up = run(scene)

@@ -585,6 +585,14 @@ class Fitter:
             return True
         return person.init is None and initializer.depth_from_few_points(person, K, self.config.init)
 
+    def _depth_bound(self, person: PersonObservation, K: np.ndarray) -> float:
+        """How deep the scan lets a person fitted without L_3D from the built-in start be
+        (`initializer.scan_depth_bound`; inf: any)."""
+        if person.init is not None or self._depth_from_points(person, K):
+            return np.inf
+        bound = initializer.scan_depth_bound(person, K, self.config.init)
+        return np.inf if bound is None else bound
+
     def _problem(self, batch: Batch, max_vertices: int | None = None) -> FitProblem:
         """The batched observations of the current bodies: visible vertices (subsampled to `max_vertices`,
         default the profile's `chamfer_max_vertices`), points, priors."""
@@ -619,6 +627,8 @@ class Fitter:
             use_lidar=torch.as_tensor(batch.use_lidar, device=dev),
             depth_measured=torch.as_tensor([not batch.use_lidar[i] and self._depth_from_points(p, K)
                                             for i, p in enumerate(batch.people)], dtype=torch.bool, device=dev),
+            depth_bound=torch.as_tensor([self._depth_bound(p, K) if not batch.use_lidar[i] else np.inf
+                                         for i, p in enumerate(batch.people)], dtype=self.dtype, device=dev),
             pixel_scale=self._pixel_scale(batch),
             neutral_scale=self._neutral_scale(batch),
             lidar_gain=self._lidar_gain(batch),

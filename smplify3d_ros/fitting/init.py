@@ -161,7 +161,8 @@ def estimate_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, use_p
     fails by putting the person too far (a bent torso, a raised ankle, a hidden leg), so the nearest is
     the one that failed least. Measured on the robot scenes of tuning seeds 0-79 (166 people): ground
     contact first (as before) was more than 30 % off for 35 people, the nearest cue for 6, and never
-    more than 50 % off."""
+    more than 50 % off. A hidden part or a crouch can still put that cue twice as far as the person; the
+    scan's bound (`scan_depth_bound`) caps it."""
     if use_points and len(obs.points):
         chest = torso_points(obs.keypoints, K, obs.points, cfg)
         points = chest if len(chest) >= cfg.lidar_heading_min_points else obs.points
@@ -170,7 +171,24 @@ def estimate_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, use_p
     if predicted is not None:
         return predicted  # a tracked person: where their track, points and all, expects them
     few = few_points_depth(obs, K, cfg)
-    return few if few is not None else min(size_depths(obs, K, cfg, whole_body=False))
+    if few is not None:
+        return few
+    depth = min(size_depths(obs, K, cfg, whole_body=False))
+    bound = scan_depth_bound(obs, K, cfg)
+    return depth if bound is None else min(depth, bound)
+
+
+def scan_depth_bound(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> float | None:
+    """The scan's `depth_bound` on a person whose start takes its depth from the size cues (no track
+    prediction, no few points the image agrees with), None otherwise, where there is none, or where it
+    lies nearer than `nearest_depth`: then the keypoints were guessed on an occluder in front, whose
+    returns they are (as points that near are an occluder's, `points_too_near`)."""
+    bound = obs.depth_bound
+    if bound is None or not np.isfinite(bound) or predicted_depth(obs) is not None:
+        return None
+    if few_points_depth(obs, K, cfg) is not None or bound < nearest_depth(obs, K, cfg):
+        return None
+    return float(bound)
 
 
 def depth_from_few_points(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> bool:

@@ -234,6 +234,14 @@ def depth_hold_residuals(transl: torch.Tensor, init_transl: torch.Tensor, weight
     return weight.sqrt() * (transl[:, 2] - init_transl[:, 2]) / z0
 
 
+def depth_bound_residuals(transl: torch.Tensor, bound: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """(B,) √w · max(0, z − b) / b: a body fitted from the image goes no deeper than the scan's bound `b`
+    (B,) (inf: none), where the LiDAR's returns along the rays of its keypoints lie."""
+    b = bound.clamp(min=0.3)
+    return torch.where(torch.isfinite(b), weight.sqrt() * (transl[:, 2] - b).clamp(min=0.0) / b.clamp(max=1e6),
+                       torch.zeros_like(b))
+
+
 def robust_residuals(residual: torch.Tensor, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
     """ψ(r) = s·r / √(s² + r²), element-wise, and dψ/dr = s³ / (s² + r²)^1.5: ψ² is the Geman-McClure ρ(r)
     (`geman_mcclure`), so a prior written as residuals r becomes a robust one whose squares sum to Σ ρ(r),

@@ -81,6 +81,7 @@ class FitProblem:
     _copies: dict = field(default_factory=dict, repr=False)  # `repeated`'s problems, by count
     init_transl: torch.Tensor | None = None  # (B, 3) the translation at the start (image-only depth hold)
     depth_measured: torch.Tensor | None = None  # (B,) bool: people without L_3D whose few points gave the depth
+    depth_bound: torch.Tensor | None = None  # (B,) depth the scan bounds people without L_3D to (inf: none)
     predicted_transl: torch.Tensor | None = None  # (B, 3) the motion hold's translations (NaN rows: none)
     predicted_keypoints: torch.Tensor | None = None  # (B, 17, 3) the joint motion hold's joints (NaN rows: none)
     lidar_origin: torch.Tensor | None = None  # (3,) the LiDAR in the camera frame: where its beams start

@@ -463,6 +463,7 @@ def normal_equations(model: BodyModel, state, problem, stage, profile: Optimizer
         free_space_block(body, problem, stage, profile, layout, acc)
     keypoint_depth_block(body, problem, stage, profile, acc)
     depth_hold_block(state, problem, stage, profile, layout, acc)
+    depth_bound_block(state, problem, stage, profile, layout, acc)
     motion_hold_block(state, problem, stage, profile, layout, acc)
     joint_motion_block(body, problem, stage, profile, acc)
     prior_block(model, state, problem, stage, profile, layout, acc)
@@ -490,6 +491,21 @@ def depth_hold_block(state, problem, stage, profile: OptimizerProfile, layout: L
     r = losses.depth_hold_residuals(state.transl, problem.init_transl, weight)
     J = r.new_zeros(r.shape[0], 1, layout.size)
     J[:, 0, 3 * layout.joints + 5] = weight.sqrt() / problem.init_transl[:, 2].clamp(min=0.3)
+    acc.add(r[:, None], J)
+
+
+def depth_bound_block(state, problem, stage, profile: OptimizerProfile, layout: Layout, acc: Residuals) -> None:
+    """`losses.depth_bound_residuals` at the weight of a depth the scan measured (`points_depth`), linear
+    in the translation's z where the bound is passed."""
+    if problem.depth_bound is None or "transl" not in stage.params or profile.weights.points_depth <= 0:
+        return
+    if not bool(torch.isfinite(problem.depth_bound).any()):
+        return
+    weight = torch.full_like(problem.depth_bound, _w(profile.weights.points_depth, profile))
+    r = losses.depth_bound_residuals(state.transl, problem.depth_bound, weight)
+    J = r.new_zeros(r.shape[0], 1, layout.size)
+    passed = (r > 0).to(r.dtype)
+    J[:, 0, 3 * layout.joints + 5] = passed * weight.sqrt() / problem.depth_bound.clamp(min=0.3, max=1e6)
     acc.add(r[:, None], J)
 
 

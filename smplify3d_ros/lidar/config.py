@@ -78,6 +78,11 @@ class ExtractionConfig:
     post_radius_m: float  # points this close across to their cluster's points above the bbox are a post's (0: off)
     post_min_points: int  # ... when at least this many of that cluster's points rise above the bbox
     post_min_rise: float  # ... the highest of them this fraction of the bbox's height above it
+    # Step 8: how far each person can be (`extract.depth_bounds`).
+    depth_bound_radius_deg: float  # returns this close to a seen keypoint's ray are on or past the body (0: none)
+    depth_bound_keypoint_score: float  # ... keypoints scored at least this (the camera sees the body there)
+    depth_bound_min_keypoints: int  # ... a bound needs at least this many keypoints with such returns
+    depth_bound_margin_m: float  # ... and lies this far behind the median of their farthest returns
 
     def __post_init__(self) -> None:
         require(self.min_depth_m >= 0.0, "min_depth_m must be >= 0")
@@ -140,3 +145,7 @@ class ExtractionConfig:
         require(self.post_radius_m >= 0.0, "post_radius_m must be >= 0 (0: off)")
         require(self.post_min_points >= 1, "post_min_points must be >= 1")
         require(self.post_min_rise >= 0.0, "post_min_rise must be >= 0")
+        require(0.0 <= self.depth_bound_radius_deg < 90.0, "depth_bound_radius_deg must be in [0, 90) (0: off)")
+        require(0.0 <= self.depth_bound_keypoint_score <= 1.0, "depth_bound_keypoint_score must be in [0, 1]")
+        require(self.depth_bound_min_keypoints >= 1, "depth_bound_min_keypoints must be >= 1")
+        require(self.depth_bound_margin_m >= 0.0, "depth_bound_margin_m must be >= 0")

@@ -7,7 +7,8 @@
   3. ground removal (`ground.fit_ground`): one plane per frame, shared by all people;
   4. clustering (`cluster.euclidean_clusters`) of the non-ground points inside any frustum or context;
   5. and 6. association (`associate.associate`): which clusters are whose, and one owner per point.
-  7. posts (`without_posts`): the points of a post a person leans on, which rises above them, are not theirs.
+  7. posts (`without_posts`): the points of a post a person leans on, which rises above them, are not theirs;
+  8. how far each person can be (`depth_bounds`): the returns along their confident keypoints' rays.
 
 Keypoints must be UNDISTORTED pixels (the caller undistorts detections with
 `camera.undistort_pixels`): points are projected with the ideal pinhole model of the same K
@@ -40,6 +41,7 @@ class PersonPoints:
     points: np.ndarray  # (M, 3) float32 the points, camera frame, m
     bbox: np.ndarray  # (4,) float64 x_min, y_min, x_max, y_max (px, undistorted): the padded keypoint
     #                   bbox clipped to the image, i.e. an estimate of the full-body box; zeros without one
+    depth_bound: float = float("nan")  # m, the depth the person cannot lie beyond (`depth_bounds`; NaN: none)
 
     @property
     def num_points(self) -> int:
@@ -94,6 +96,39 @@ def without_posts(horizontal: np.ndarray, uv: np.ndarray, clusters: np.ndarray, 
         dist, _ = cKDTree(horizontal[above]).query(horizontal[mine], k=1)
         out[np.flatnonzero(mine)[dist < config.post_radius_m]] = -1
     return out
+
+
+def depth_bounds(points: np.ndarray, uv: np.ndarray, keypoints: np.ndarray, camera: CameraModel,
+                 config: ExtractionConfig) -> np.ndarray:
+    """(P,) depth (m, camera z) beyond which each person cannot lie, NaN where the scan does not say.
+
+    Where the camera sees a body part (a keypoint scored `depth_bound_keypoint_score` or more), nothing
+    stands in front of it, so the LiDAR's returns along that ray (within `depth_bound_radius_deg`) hit the
+    body or what lies behind it; the farthest of them is no nearer than the body there. The bound is the
+    median of those farthest returns over the keypoints that have any (at least
+    `depth_bound_min_keypoints`: the edge of an occluder next to one keypoint does not set it) plus
+    `depth_bound_margin_m`. It holds for a person the extraction left without points: a size cue alone
+    put a crouching person 14 m out, their hips hidden, at 30 m, and their own returns were there
+    (docs/benchmarks.md, "A depth bound from the scan").
+
+    points: (M, 3) non-ground points (camera frame) and uv: (M, 2) their undistorted pixels;
+    keypoints: (P, 17, 3) undistorted u, v (px) and score.
+    """
+    bounds = np.full(len(keypoints), np.nan)
+    if config.depth_bound_radius_deg <= 0.0 or len(points) == 0 or len(keypoints) == 0:
+        return bounds
+    K = camera.K
+    radius = 0.5 * float(K[0, 0] + K[1, 1]) * np.tan(np.radians(config.depth_bound_radius_deg))
+    tree = cKDTree(uv)
+    depth = np.asarray(points[:, 2], np.float64)
+    for k, kp in enumerate(np.asarray(keypoints, np.float64)):
+        seen = (kp[:, 2] >= config.depth_bound_keypoint_score) & np.isfinite(kp[:, :2]).all(axis=1)
+        if np.count_nonzero(seen) < config.depth_bound_min_keypoints:
+            continue
+        farthest = [depth[near].max() for near in tree.query_ball_point(kp[seen, :2], radius) if near]
+        if len(farthest) >= config.depth_bound_min_keypoints:
+            bounds[k] = float(np.median(farthest)) + config.depth_bound_margin_m
+    return bounds
 
 
 def extract_people(
@@ -159,9 +194,11 @@ def extract_people(
     owner = without_posts(coords[:, :2], cand_uv, clusters, owner, skeletons, config)
     labels[candidates] = owner.astype(np.int32)
 
+    # 8. How far each person can be.
+    bounds = depth_bounds(points[candidates], cand_uv, keypoints, camera, config)
     people = []
     for k, skeleton in enumerate(skeletons):
         indices = candidates[owner == k].astype(np.int64)
         bbox = skeleton.bbox if skeleton is not None else np.zeros(4)
-        people.append(PersonPoints(indices=indices, points=points[indices], bbox=bbox))
+        people.append(PersonPoints(indices=indices, points=points[indices], bbox=bbox, depth_bound=float(bounds[k])))
     return ExtractionResult(people=people, labels=labels, ground=ground)
