@@ -53,7 +53,9 @@ def undistort_pixels(uv: np.ndarray, camera: CameraModel) -> np.ndarray:
     if not camera.has_distortion or len(uv) == 0:
         return uv.copy()
     _check_model(camera)
-    src = uv.reshape(-1, 1, 2)
+    # contiguous: cv2.fisheye.undistortPoints reads a strided view (a keypoint array's u, v columns) as if
+    # it were packed, and returned other keypoints' scores as coordinates
+    src = np.ascontiguousarray(uv).reshape(-1, 1, 2)
     if camera.distortion_model in _FISHEYE:
         d = np.zeros(4)
         d[: min(4, len(camera.dist_coeffs))] = camera.dist_coeffs[:4]

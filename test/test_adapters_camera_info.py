@@ -118,3 +118,16 @@ def test_undistort_inverts_project(model):
     err = np.linalg.norm(back - uv_ideal, axis=1).max()
     assert err < 0.05, f"{model}: undistort(project(p)) is {err:.4f} px off"
     np.testing.assert_allclose(project_points(rays, cam, distort=False), uv_ideal, atol=1e-9)
+
+
+@pytest.mark.parametrize("model", list(MODELS))
+def test_undistort_reads_the_pixels_of_a_keypoint_array_in_place(model):
+    """Keypoints are (P, 17, 3) u, v, score: their pixels, `keypoints[..., :2]`, are a strided view. The
+    fisheye undistortion read such a view as packed pairs and gave the scores back as coordinates, so a
+    fisheye camera lost every person's keypoints but the first."""
+    cam = camera_info_to_model(info_msg(distortion_model=model, d=MODELS[model]))
+    rng = np.random.default_rng(1)
+    keypoints = np.concatenate([rng.uniform([50, 50], [590, 430], (2, 17, 2)), rng.uniform(0, 1, (2, 17, 1))], -1)
+    view = keypoints[..., :2].reshape(-1, 2)
+    assert not view.flags["C_CONTIGUOUS"]
+    np.testing.assert_allclose(undistort_pixels(view, cam), undistort_pixels(view.copy(), cam), atol=1e-9)
