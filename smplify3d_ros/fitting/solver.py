@@ -494,14 +494,20 @@ def depth_hold_block(state, problem, stage, profile: OptimizerProfile, layout: L
     acc.add(r[:, None], J)
 
 
+def depth_bound_weights(problem, profile: OptimizerProfile) -> torch.Tensor | None:
+    """(B,) weight of each person's depth bound: that of a depth the scan measured (`points_depth`), for
+    the people `problem.depth_bound` bounds; None: no bound."""
+    bound = problem.depth_bound
+    if bound is None or profile.weights.points_depth <= 0 or not bool(torch.isfinite(bound).any()):
+        return None
+    return torch.full_like(bound, _w(profile.weights.points_depth, profile))
+
+
 def depth_bound_block(state, problem, stage, profile: OptimizerProfile, layout: Layout, acc: Residuals) -> None:
-    """`losses.depth_bound_residuals` at the weight of a depth the scan measured (`points_depth`), linear
-    in the translation's z where the bound is passed."""
-    if problem.depth_bound is None or "transl" not in stage.params or profile.weights.points_depth <= 0:
+    """`losses.depth_bound_residuals`, linear in the translation's z where the bound is passed."""
+    weight = depth_bound_weights(problem, profile) if "transl" in stage.params else None
+    if weight is None:
         return
-    if not bool(torch.isfinite(problem.depth_bound).any()):
-        return
-    weight = torch.full_like(problem.depth_bound, _w(profile.weights.points_depth, profile))
     r = losses.depth_bound_residuals(state.transl, problem.depth_bound, weight)
     J = r.new_zeros(r.shape[0], 1, layout.size)
     passed = (r > 0).to(r.dtype)

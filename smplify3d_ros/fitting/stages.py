@@ -107,10 +107,9 @@ def stage_loss(
     hold = solver.depth_hold_weights(problem, profile) if "transl" in stage.params else None
     if hold is not None:
         loss = loss + losses.depth_hold_residuals(state.transl, problem.init_transl, hold) ** 2
-    if (problem.depth_bound is not None and "transl" in stage.params and weights.points_depth > 0
-            and bool(torch.isfinite(problem.depth_bound).any())):
-        bound_weight = torch.full_like(problem.depth_bound, _w(weights.points_depth, profile))
-        loss = loss + losses.depth_bound_residuals(state.transl, problem.depth_bound, bound_weight) ** 2
+    bound = solver.depth_bound_weights(problem, profile) if "transl" in stage.params else None
+    if bound is not None:
+        loss = loss + losses.depth_bound_residuals(state.transl, problem.depth_bound, bound) ** 2
     loss = loss + motion_hold_loss(state, problem, stage, profile)
     loss = loss + joint_motion_loss(out.keypoints, problem, stage, profile)
     if stage.keypoint_depth_weight > 0 and problem.keypoint_depth is not None:
