@@ -167,7 +167,7 @@ class LossWeights:
     neutral: float  # Gaussian pose prior around the anatomical neutral, per range of motion (0 in the thesis)
     upright: float  # prior on the body's tilt from the world's up (sine of the tilt), 0: none
     image_depth: float  # holds the initial depth of people fitted without L_3D (relative error), 0: free
-    points_depth: float  # the same hold for those of them whose few points (min_points_depth) measured the depth
+    points_depth: float  # that hold where few points (min_points_depth) measured the depth; the scan's depth bound's
     sigma_px: float  # Geman-McClure σ, stages 1-2 (and single-stage)
     sigma_px_final: float  # Geman-McClure σ, stage 3
     # holds the translation where an initial estimate that carries a prediction put it (a tracked person's
