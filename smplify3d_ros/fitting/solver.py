@@ -489,8 +489,13 @@ def depth_hold_block(state, problem, stage, profile: OptimizerProfile, layout: L
     if weight is None:
         return
     r = losses.depth_hold_residuals(state.transl, problem.init_transl, weight)
+    _add_depth_rows(r, weight.sqrt() / problem.init_transl[:, 2].clamp(min=0.3), layout, acc)
+
+
+def _add_depth_rows(r: torch.Tensor, dr_dz: torch.Tensor, layout: Layout, acc: Residuals) -> None:
+    """(B,) residuals that depend on the translation's z alone, with their derivative dr/dz (B,)."""
     J = r.new_zeros(r.shape[0], 1, layout.size)
-    J[:, 0, 3 * layout.joints + 5] = weight.sqrt() / problem.init_transl[:, 2].clamp(min=0.3)
+    J[:, 0, 3 * layout.joints + 5] = dr_dz
     acc.add(r[:, None], J)
 
 
@@ -509,10 +514,8 @@ def depth_bound_block(state, problem, stage, profile: OptimizerProfile, layout: 
     if weight is None:
         return
     r = losses.depth_bound_residuals(state.transl, problem.depth_bound, weight)
-    J = r.new_zeros(r.shape[0], 1, layout.size)
     passed = (r > 0).to(r.dtype)
-    J[:, 0, 3 * layout.joints + 5] = passed * weight.sqrt() / problem.depth_bound.clamp(min=0.3, max=1e6)
-    acc.add(r[:, None], J)
+    _add_depth_rows(r, passed * weight.sqrt() / problem.depth_bound.clamp(min=0.3, max=1e6), layout, acc)
 
 
 def motion_hold_block(state, problem, stage, profile: OptimizerProfile, layout: Layout, acc: Residuals) -> None:
