@@ -586,11 +586,9 @@ class Fitter:
         return person.init is None and initializer.depth_from_few_points(person, K, self.config.init)
 
     def _depth_bound(self, person: PersonObservation, K: np.ndarray) -> float:
-        """How deep the scan lets a person fitted without L_3D from the built-in start be
-        (`initializer.scan_depth_bound`; inf: any)."""
-        if person.init is not None or self._depth_from_points(person, K):
-            return np.inf
-        bound = initializer.scan_depth_bound(person, K, self.config.init)
+        """How deep the scan lets a person fitted without L_3D from the built-in start, their depth not
+        measured by points (`_depth_from_points`), be (`initializer.scan_depth_bound`; inf: any)."""
+        bound = None if person.init is not None else initializer.scan_depth_bound(person, K, self.config.init)
         return np.inf if bound is None else bound
 
     def _problem(self, batch: Batch, max_vertices: int | None = None) -> FitProblem:
@@ -614,6 +612,10 @@ class Fitter:
         vidx, vmask = _pad_rows(np.split(positions, np.cumsum([len(r) for r in vertex_rows])[:-1]), 0, 0)
         pts, pmask = _pad_rows(point_rows, 3, 0.0)
         dev = self.device
+        # people without L_3D whose points measured the depth (held there), and the others' scan bounds
+        measured = [not batch.use_lidar[i] and self._depth_from_points(p, K) for i, p in enumerate(batch.people)]
+        bounds = [np.inf if batch.use_lidar[i] or measured[i] else self._depth_bound(p, K)
+                  for i, p in enumerate(batch.people)]
         return FitProblem(
             K=batch.K, keypoints=batch.keypoints, confidence=batch.confidence,
             points=torch.as_tensor(pts, dtype=self.dtype, device=dev),
@@ -625,10 +627,8 @@ class Fitter:
             init_pose=batch.state.pose.detach().clone(),
             init_transl=batch.state.transl.detach().clone(),
             use_lidar=torch.as_tensor(batch.use_lidar, device=dev),
-            depth_measured=torch.as_tensor([not batch.use_lidar[i] and self._depth_from_points(p, K)
-                                            for i, p in enumerate(batch.people)], dtype=torch.bool, device=dev),
-            depth_bound=torch.as_tensor([self._depth_bound(p, K) if not batch.use_lidar[i] else np.inf
-                                         for i, p in enumerate(batch.people)], dtype=self.dtype, device=dev),
+            depth_measured=torch.as_tensor(measured, dtype=torch.bool, device=dev),
+            depth_bound=torch.as_tensor(bounds, dtype=self.dtype, device=dev),
             pixel_scale=self._pixel_scale(batch),
             neutral_scale=self._neutral_scale(batch),
             lidar_gain=self._lidar_gain(batch),

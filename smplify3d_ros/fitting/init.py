@@ -174,19 +174,25 @@ def estimate_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, use_p
     if few is not None:
         return few
     depth = min(size_depths(obs, K, cfg, whole_body=False))
-    bound = scan_depth_bound(obs, K, cfg)
+    bound = _accepted_bound(obs, K, cfg)
     return depth if bound is None else min(depth, bound)
 
 
 def scan_depth_bound(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> float | None:
     """The scan's `depth_bound` on a person whose start takes its depth from the size cues (no track
-    prediction, no few points the image agrees with), None otherwise, where there is none, or where it
-    lies nearer than `nearest_depth`: then the keypoints were guessed on an occluder in front, whose
-    returns they are (as points that near are an occluder's, `points_too_near`)."""
-    bound = obs.depth_bound
-    if bound is None or not np.isfinite(bound) or predicted_depth(obs) is not None:
+    prediction, no few points the image agrees with: `estimate_depth`'s last case), None otherwise or
+    where `_accepted_bound` refuses it."""
+    if predicted_depth(obs) is not None or few_points_depth(obs, K, cfg) is not None:
         return None
-    if few_points_depth(obs, K, cfg) is not None or bound < nearest_depth(obs, K, cfg):
+    return _accepted_bound(obs, K, cfg)
+
+
+def _accepted_bound(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> float | None:
+    """`obs.depth_bound`, None where there is none or where it lies nearer than `nearest_depth`: then
+    the keypoints were guessed on an occluder in front, whose returns they are (as points that near are
+    an occluder's, `points_too_near`)."""
+    bound = obs.depth_bound
+    if bound is None or not np.isfinite(bound) or bound < nearest_depth(obs, K, cfg):
         return None
     return float(bound)
 
