@@ -356,6 +356,57 @@ def test_a_given_hypothesis_competes_with_the_builtin_headings(anny_model):
     assert fitter.given_hypothesis_wins([dataclasses.replace(obs, hypothesis=turned)], K) == [False]
 
 
+def _competition(model, overrides, first_losses):
+    """`Fitter._compete` on one synthetic person with its refinement replaced: the first call returns
+    `first_losses(trial)`, a later one moves its rows' pose by 0.01 rad and returns 1, 2, ... by row.
+    Returns the trial, the kept rows and each call's (rows, iterations)."""
+    fitter = Fitter(load_config(overrides={"fitting": {"init": overrides}}).fitting, model)
+    (sp,), K = _people(model, 1, seed=5)
+    batch = fitter._start([dataclasses.replace(sp.observation, init=None)], K, None, FitOptions())
+    fitter._initialize(batch)
+    calls = []
+
+    def refine(trial, iterations):
+        calls.append((trial.size, iterations))
+        if len(calls) == 1:
+            return first_losses(trial)
+        with torch.no_grad():
+            trial.state.pose += 0.01
+        return torch.arange(1, trial.size + 1, dtype=torch.float64)
+
+    fitter._refine = refine
+    trial, kept = fitter._compete(batch)
+    return trial, kept, calls
+
+
+def test_the_competing_hypotheses_are_reviewed_and_the_hopeless_dropped(anny_model):
+    """After `hypothesis_review_iterations` of the `hypothesis_iterations`, the hypotheses within
+    `hypothesis_drop_ratio` of their person's best loss (a swapped reading's over the swap margin) run the
+    rest from a problem posed anew (`Fitter._review`: the refinement poses it from their bodies as they
+    now stand); the others are dropped and never kept."""
+    def first_losses(trial):
+        swapped = [r for r, order in enumerate(trial.readings) if order is not None]
+        assert swapped and trial.size > 4
+        loss = torch.full((trial.size,), 10.0, dtype=torch.float64)
+        loss[0], loss[1] = 1.0, 1.9  # the best, and one within 2x of it
+        loss[swapped[0]] = 1.7  # within 2x as read, not over the swap margin 0.8: 2.125
+        return loss
+
+    trial, kept, calls = _competition(anny_model, {"hypothesis_iterations": 4, "hypothesis_review_iterations": 1,
+                                                      "hypothesis_drop_ratio": 2.0, "final_hypotheses": 4,
+                                                      "final_hypothesis_ratio": 100.0}, first_losses)
+    assert calls == [(trial.size, 1), (2, 3)]  # rows 0 and 1 go on for the other three iterations
+    assert list(kept[0]) == [0, 1]  # the dropped never come back, however many may go on
+    # the review's rows carry their new state back into the trial; the dropped keep theirs
+    reference = _competition(anny_model, {"hypothesis_iterations": 1}, first_losses)[0]
+    moved = (trial.state.pose - reference.state.pose).abs().amax(dim=(1, 2))
+    assert torch.allclose(moved[:2], torch.full((2,), 0.01, dtype=moved.dtype)) and not moved[2:].any()
+    # without a review: one refinement of every hypothesis, as before the review existed
+    _, kept, calls = _competition(anny_model, {"hypothesis_iterations": 4, "hypothesis_review_iterations": 0},
+                                  first_losses)
+    assert calls == [(calls[0][0], 4)] and list(kept[0]) == [0]
+
+
 def test_a_tracked_person_fitted_cold_from_the_image_starts_at_their_tracks_depth(anny_model):
     """Without points, the built-in start takes its depth from the image's size cues, which a half-hidden
     person defeats (their visible half looks like someone farther away); a tracked person's prediction

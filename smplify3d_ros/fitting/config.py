@@ -95,6 +95,8 @@ class InitConfig:
     limb_depth_sigma: float
     refine_iterations: int
     hypothesis_iterations: int
+    hypothesis_review_iterations: int  # the hypotheses' visible vertices picked again after this many (0: never)
+    hypothesis_drop_ratio: float  # ... where those with a loss over this x their person's best are dropped
     final_hypotheses: int
     final_hypothesis_ratio: float
     final_hypothesis_margin: float
@@ -141,6 +143,8 @@ class InitConfig:
         require(not unknown, f"swap_hypotheses: unknown keypoint groups {unknown}; known: {list(SWAP_GROUPS)}")
         require(self.refine_max_vertices >= 0, "refine_max_vertices must be >= 0 (0 = all)")
         require(self.hypothesis_iterations >= 0, "hypothesis_iterations must be >= 0 (at most refine_iterations run)")
+        require(self.hypothesis_review_iterations >= 0, "hypothesis_review_iterations must be >= 0 (0: never)")
+        require(self.hypothesis_drop_ratio >= 1, "hypothesis_drop_ratio must be >= 1")
         require(self.heading_hypotheses >= 1, "heading_hypotheses must be >= 1")
         require(self.final_hypotheses >= 1, "final_hypotheses must be >= 1")
         require(self.final_hypothesis_ratio >= 1, "final_hypothesis_ratio must be >= 1")

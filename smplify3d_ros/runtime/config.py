@@ -281,6 +281,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "fitting.init.lidar_heading_min_points": (2, _INF), "fitting.init.lidar_heading_min_spread": (0, _INF),
     "fitting.init.lidar_heading_max_ratio": (0, 1), "fitting.init.heading_hypotheses": (1, _INF),
     "fitting.init.hypothesis_merge_deg": (0, _INF), "fitting.init.hypothesis_iterations": (0, _INF),
+    "fitting.init.hypothesis_review_iterations": (0, _INF), "fitting.init.hypothesis_drop_ratio": (1, _INF),
     "fitting.init.final_hypotheses": (1, _INF), "fitting.init.final_hypothesis_ratio": (1, _INF),
     "fitting.init.final_hypothesis_margin": (0, 1),
     "fitting.init.limb_keypoint_conf": (0, 1), "fitting.init.limb_radius": (0, _INF),
