@@ -370,11 +370,7 @@ class Fitter:
                 self._read_in_order(out, int(row), trial.readings[trial_row])
         rest = init.refine_iterations - min(init.hypothesis_iterations, init.refine_iterations)
         if rest > 0:
-            built = np.flatnonzero(out.builtin)
-            chosen = out.take(built)
-            chosen.state = out.state.take(torch.as_tensor(built, device=self.device))
-            self._refine(chosen, rest)
-            out.state.copy_rows_from_subset(chosen.state, torch.as_tensor(built))
+            self._refine_rows(out, np.flatnonzero(out.builtin), rest)
         return out, owner
 
     def _compete(self, batch: Batch) -> tuple[Batch, dict[int, np.ndarray]]:
@@ -419,14 +415,18 @@ class Fitter:
         np.minimum.at(best, rows, loss)
         keep = np.flatnonzero(np.isfinite(loss) & (loss <= self.config.init.hypothesis_drop_ratio * best[rows]))
         out = np.full(len(rows), np.inf)
-        if not len(keep):
-            return out
-        index = torch.as_tensor(keep, device=self.device)
-        sub = trial.take(keep)  # the readings' keypoints and occlusion as the trial has them (swapped)
-        sub.state = trial.state.take(index)
-        out[keep] = self._refine(sub, iterations).cpu().double().numpy()
-        trial.state.copy_rows_from_subset(sub.state, index)
+        if len(keep):  # the readings' keypoints and occlusion as the trial has them (swapped)
+            out[keep] = self._refine_rows(trial, keep, iterations).cpu().double().numpy()
         return out
+
+    def _refine_rows(self, batch: Batch, rows: np.ndarray, iterations: int) -> torch.Tensor:
+        """`_refine` of `batch`'s `rows` only, their state updated in place; (len(rows),) final losses."""
+        index = torch.as_tensor(rows, device=self.device)
+        sub = batch.take(rows)
+        sub.state = batch.state.take(index)
+        loss = self._refine(sub, iterations)
+        batch.state.copy_rows_from_subset(sub.state, index)
+        return loss
 
     def given_hypothesis_wins(self, people: list[PersonObservation], K: np.ndarray,
                               lidar_origin: np.ndarray | None = None,
