@@ -275,6 +275,21 @@ def test_the_returns_along_a_persons_keypoint_rays_bound_their_depth():
     assert np.isnan(few.people[0].depth_bound)  # 17 keypoints cannot give 18
 
 
+def test_keypoints_scored_as_seen_on_an_occluder_do_not_bound_the_person_in_front_of_it():
+    """A detector that scores hidden joints as seen (a projected body, a pose network's guesses): a
+    person 6 m out behind a box 4 m out that hides all but their head and shoulders, every keypoint
+    scored 0.9. Most keypoint rays end on the box; the head's pass on to the person and the wall 7 m out.
+    The bound (the farthest return over the keypoints) lies past the person; the median of those
+    returns, the bound before, lies in front of them."""
+    scene = Scene().ground().box((7.0, -6, 0), (7.3, 6, 3)).box((4.0, -0.6, 0), (4.3, 0.6, 1.3)).person(6.0, 0.0)
+    person_z = 6.0 - CAMERA_IN_LIDAR[0]
+    result, _, _ = run(scene)
+    assert result.people[0].depth_bound > person_z
+    points_cam = transform_points(scene.scan(vlp16_rays())[0], t_cam_lidar())
+    median = extract_people(points_cam, scene.keypoints(), CAMERA, make_config(depth_bound_quantile=0.5))
+    assert median.people[0].depth_bound < person_z
+
+
 def test_two_people_side_by_side_touching():
     scene = Scene().ground().person(5.0, 0.33).person(5.0, -0.33)
     result, truth, up = run(scene)

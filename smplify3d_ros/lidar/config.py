@@ -82,7 +82,8 @@ class ExtractionConfig:
     depth_bound_radius_deg: float  # returns this close to a seen keypoint's ray are on or past the body (0: none)
     depth_bound_keypoint_score: float  # ... keypoints scored at least this (the camera sees the body there)
     depth_bound_min_keypoints: int  # ... a bound needs at least this many keypoints with such returns
-    depth_bound_margin_m: float  # ... and lies this far behind the median of their farthest returns
+    depth_bound_quantile: float  # ... over those keypoints, this quantile of their farthest returns (1: the farthest)
+    depth_bound_margin_m: float  # ... and the bound lies this far behind it
 
     def __post_init__(self) -> None:
         require(self.min_depth_m >= 0.0, "min_depth_m must be >= 0")
@@ -148,4 +149,5 @@ class ExtractionConfig:
         require(0.0 <= self.depth_bound_radius_deg < 90.0, "depth_bound_radius_deg must be in [0, 90) (0: off)")
         require(0.0 <= self.depth_bound_keypoint_score <= 1.0, "depth_bound_keypoint_score must be in [0, 1]")
         require(self.depth_bound_min_keypoints >= 1, "depth_bound_min_keypoints must be >= 1")
+        require(0.0 <= self.depth_bound_quantile <= 1.0, "depth_bound_quantile must be in [0, 1]")
         require(self.depth_bound_margin_m >= 0.0, "depth_bound_margin_m must be >= 0")

@@ -326,6 +326,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "lidar.secondary_link_m": (0, _INF), "lidar.body_depth_window_m": (0, _INF),
     "lidar.depth_bound_radius_deg": (0, 90), "lidar.depth_bound_keypoint_score": (0, 1),
     "lidar.depth_bound_min_keypoints": (1, _INF), "lidar.depth_bound_margin_m": (0, _INF),
+    "lidar.depth_bound_quantile": (0, 1),
 }
 
 
