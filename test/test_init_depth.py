@@ -242,8 +242,9 @@ def test_a_few_points_the_image_agrees_with_give_a_half_hidden_persons_depth(ann
     """Two points on the chest of a person 8 m out whose lower body is hidden (fewer than
     `min_points_depth`): the upper body's box alone puts them twice as far, and the points, nearer than
     that, give the depth, held by the fit. Two points of the background seen past the body, beyond every
-    size cue, contradict the image: the box cue decides. With `few_points_max_ratio` 0 the chest's
-    points are ignored too."""
+    size cue, contradict the image: the box cue decides; 10 % beyond the nearest cue they do not
+    (`few_points_max_ratio`: the cues' own noise). With `few_points_max_ratio` 0 the chest's points are
+    ignored too."""
     config = load_config().fitting
     obs, pelvis, K = _person_on_ground(anny_model)
     true_z = float(pelvis[2])
@@ -262,6 +263,11 @@ def test_a_few_points_the_image_agrees_with_give_a_half_hidden_persons_depth(ann
     background = _upper_body_only(obs, wall)
     assert few_points_depth(background, K, config.init) is None
     assert estimate_depth(background, K, config.init, use_points=False) == size_only
+    # a little beyond the nearest cue (10 %: its keypoint noise at that range) the points still decide
+    beyond = _upper_body_only(obs, chest * np.float32(1.1 * size_only / true_z))
+    assert abs(few_points_depth(beyond, K, config.init) / size_only - 1.1) < 0.05
+    strict = dataclasses.replace(config.init, few_points_max_ratio=1.0)
+    assert few_points_depth(beyond, K, strict) is None
 
     off = dataclasses.replace(config, init=dataclasses.replace(config.init, few_points_max_ratio=0.0))
     assert few_points_depth(hidden, K, off.init) is None

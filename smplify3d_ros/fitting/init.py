@@ -143,8 +143,10 @@ def few_points_depth(obs: PersonObservation, K: np.ndarray, cfg: InitConfig) -> 
     """The pelvis depth that a person's points give when they are too few to be trusted on their own
     (under `fitting.min_points_depth`) but the image agrees with them: it lies no farther than
     `few_points_max_ratio` x the nearest `size_depths`, each an upper bound for a partly hidden person
-    (whose box and torso shrink in the image). Points beyond it contradict the image: another person's,
-    or the background seen past the body. (Points far nearer, an occluder's, are dropped before:
+    (whose box and torso shrink in the image) up to its own noise: a torso 25 px tall 10 m out reads 4 %
+    off per pixel, and a person hidden behind another 10.1 m out, with two points of their own there,
+    read 9.8 m on their nearest cue. Points beyond it contradict the image: another person's, or the
+    background seen past the body. (Points far nearer, an occluder's, are dropped before:
     `points_too_near`.) None otherwise."""
     if len(obs.points) == 0 or cfg.few_points_max_ratio <= 0.0:
         return None
