@@ -567,10 +567,12 @@ def test_an_occluder_over_the_joints_seen_with_low_confidence_is_not_the_person(
     10-11 m out; the detector still reports the hidden joints, with low confidence, and the occluder
     fills the mask there. Counting every covered part as 1, the occluder won (the fit stood 2.4 m and
     7 m in front of the person); weighted by the parts' keypoint scores, the person's own points win
-    (the rules added since, the purity floor and thin parts' refutation, also find them: off here)."""
+    (the rules added since, the purity floor, thin parts' refutation and the larger of two claimants
+    first, also find them: off here)."""
     sim, k, own = robot_scene_person(seed, n_people, person)
     assert len(own) >= 10
-    weighted_only = make_config(coverage_full_score=1e-6, purity_min_room=1e-6, thin_refute_ratio=0.0)
+    weighted_only = make_config(coverage_full_score=1e-6, purity_min_room=1e-6, thin_refute_ratio=0.0,
+                                contest_extent_power=0.0)
     for config, keeps_own in ((weighted_only, False), (CONFIG, True)):
         taken = extracted(sim, k, config).indices
         found = len(taken) > 0 and np.isin(taken, own).mean() > 0.9
@@ -824,3 +826,54 @@ def test_the_score_scale_follows_the_frames_upper_quartile_and_never_raises_a_th
     assert score_scale(np.full(17, 0.6), CONFIG) == pytest.approx(0.6 / CONFIG.score_level)
     assert score_scale(np.full(17, 0.6), make_config(score_level=0.0)) == 1.0
     assert score_scale(np.zeros(0), CONFIG) == 1.0
+
+
+def test_of_two_people_claiming_one_cluster_the_larger_looking_one_in_front_takes_it():
+    """A simulated robot-path scene (tuning seed 239) seen by a detector that scores every joint 1, the
+    hidden ones too: a woman 8.6 m out and a man 11.4 m out right behind her, hidden but for 23 % of
+    him. His skeleton, drawn over her body, claims her cluster as well as she does, and scored 2.25 on it
+    against her 2.00: he took it and she was left the wall's returns far behind (both fits 2.8 m off).
+    Of two claimants the one behind looks smaller; with `contest_extent_power` 1 she keeps her points
+    and he does not take them (counterfactual: 0)."""
+    from smplify3d_ros.sim.config import load_sim_config
+    from smplify3d_ros.sim.world import simulate_scenario
+
+    base = load_sim_config()
+    flat = dataclasses.replace(base.detector, score_visible=(1.0, 0.0), score_self_occluded=(1.0, 0.0),
+                               score_occluded=(1.0, 0.0), score_drop_per_m=0.0)
+    sim = simulate_scenario(239, dataclasses.replace(base, detector=flat), "robot", sensor="vlp16", n_people=2,
+                            distance_range=(1.5, 15.0))
+    ids = list(sim.frame.person_ids)
+    woman, man = ids.index(0), ids.index(1)
+    hers = np.flatnonzero(sim.point_labels == 0)
+    assert len(hers) >= 30 and np.all(sim.frame.keypoints[:, :, 2] == 1.0)
+    for power, keeps in ((1.0, True), (0.0, False)):
+        config = make_config(contest_extent_power=power)
+        taken, his = extracted(sim, woman, config).indices, extracted(sim, man, config).indices
+        assert (np.isin(taken, hers).mean() >= 0.9 and np.isin(hers, taken).mean() >= 0.8) == keeps, \
+            (power, len(taken), int(np.isin(taken, hers).sum()))
+        assert (np.isin(his, hers).sum() == 0) == keeps, (power, len(his), int(np.isin(his, hers).sum()))
+
+
+def test_only_people_still_without_a_cluster_contest_one():
+    """`_assign` with the larger-claimant rule: person 0 (extent 0.32) takes cluster 0 (score 5); person
+    1 (extent 0.16) then chooses between cluster 1 (score 0.84, 9 mask points), which person 0 also
+    qualified for, and cluster 2 (0.83, 2 points). Person 0, placed, no longer contests cluster 1, so
+    person 1 takes it by score (on bags/people_anonymous, weighting every pair once before any was taken
+    gave a walker the 2 points). And two people claiming one cluster with no exclusive points: the
+    larger-looking one takes it even at a lower score, and the other gets no cluster."""
+    from smplify3d_ros.lidar.associate import _assign
+
+    def counts(in_mask, exclusive):
+        return {"in_mask": np.array(in_mask), "exclusive": np.array(exclusive)}
+
+    score = np.array([[5.0, 0.2, 0.0], [0.0, 0.84, 0.83]])
+    main, _ = _assign(score, score > 0, counts([[85, 7, 0], [0, 9, 2]], [[27, 1, 0], [0, 3, 2]]), CONFIG,
+                      extent=np.array([0.32, 0.16]))
+    assert main.tolist() == [0, 1]
+    score = np.array([[2.0], [2.25]])
+    claims = counts([[41], [41]], [[0], [0]])
+    main, _ = _assign(score, score > 0, claims, CONFIG, extent=np.array([0.20, 0.15]))
+    assert main.tolist() == [0, -1]
+    main, _ = _assign(score, score > 0, claims, make_config(contest_extent_power=0.0), extent=np.array([0.20, 0.15]))
+    assert main.tolist() == [-1, 0]

@@ -57,6 +57,7 @@ class ExtractionConfig:
     coverage_full_score: float  # a covered part counts 1 when its keypoints score this, in proportion below
     shared_weight: float  # weight of mask points another skeleton also covers, in the cluster score
     share_min_exclusive: float  # fraction of exclusive mask points for two people to share a cluster
+    contest_extent_power: float  # a cluster several people claim: score x (extent / largest claimant's)^this (0: off)
     core_radius_m: float  # points this close to a skeleton are its body or an occluder, not background
     refuting_parts: list[str]  # body parts (keypoints.BODY_PARTS) wide enough to refute a cluster
     refute_min_score: float  # only segments whose keypoints score at least this refute a cluster
@@ -127,6 +128,7 @@ class ExtractionConfig:
         require(0.0 < self.coverage_full_score <= 1.0, "coverage_full_score must be in (0, 1]")
         require(0.0 <= self.shared_weight <= 1.0, "shared_weight must be in [0, 1]")
         require(0.0 <= self.share_min_exclusive <= 1.0, "share_min_exclusive must be in [0, 1]")
+        require(self.contest_extent_power >= 0.0, "contest_extent_power must be >= 0")
         for name in ("refuting_parts", "hidden_parts"):
             unknown = sorted(set(getattr(self, name)) - set(PART_NAMES))
             require(not unknown, f"{name}: unknown body parts {unknown}; known: {list(PART_NAMES)}")

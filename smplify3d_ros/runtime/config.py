@@ -319,6 +319,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "lidar.surface_side_width": (0, _INF), "lidar.surface_ratio": (0, _INF), "lidar.surface_min_points": (1, _INF),
     "lidar.surface_one_side_ratio": (0, _INF),
     "lidar.shared_weight": (0, 1), "lidar.coverage_full_score": (0, 1), "lidar.share_min_exclusive": (0, 1),
+    "lidar.contest_extent_power": (0, _INF),
     "lidar.core_radius_m": (0, _INF),
     "lidar.refute_min_score": (0, 1), "lidar.score_level": (0, 1), "lidar.refute_ratio": (1, _INF),
     "lidar.occluder_min_points": (0, _INF), "lidar.outshone_core_points": (0, _INF),
