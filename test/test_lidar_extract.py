@@ -567,12 +567,12 @@ def test_an_occluder_over_the_joints_seen_with_low_confidence_is_not_the_person(
     10-11 m out; the detector still reports the hidden joints, with low confidence, and the occluder
     fills the mask there. Counting every covered part as 1, the occluder won (the fit stood 2.4 m and
     7 m in front of the person); weighted by the parts' keypoint scores, the person's own points win
-    (the rules added since, the purity floor, thin parts' refutation and the larger of two claimants
-    first, also find them: off here)."""
+    (the rules added since, the purity floor, thin parts' refutation, the larger of two claimants first
+    and equal scores broken by core points, also find them: off here)."""
     sim, k, own = robot_scene_person(seed, n_people, person)
     assert len(own) >= 10
     weighted_only = make_config(coverage_full_score=1e-6, purity_min_room=1e-6, thin_refute_ratio=0.0,
-                                contest_extent_power=0.0)
+                                contest_extent_power=0.0, core_tie_break=False)
     for config, keeps_own in ((weighted_only, False), (CONFIG, True)):
         taken = extracted(sim, k, config).indices
         found = len(taken) > 0 and np.isin(taken, own).mean() > 0.9
@@ -865,7 +865,7 @@ def test_only_people_still_without_a_cluster_contest_one():
     from smplify3d_ros.lidar.associate import _assign
 
     def counts(in_mask, exclusive):
-        return {"in_mask": np.array(in_mask), "exclusive": np.array(exclusive)}
+        return {"in_mask": np.array(in_mask), "exclusive": np.array(exclusive), "core": np.zeros_like(in_mask)}
 
     score = np.array([[5.0, 0.2, 0.0], [0.0, 0.84, 0.83]])
     main, _ = _assign(score, score > 0, counts([[85, 7, 0], [0, 9, 2]], [[27, 1, 0], [0, 3, 2]]), CONFIG,
@@ -877,3 +877,24 @@ def test_only_people_still_without_a_cluster_contest_one():
     assert main.tolist() == [0, -1]
     main, _ = _assign(score, score > 0, claims, make_config(contest_extent_power=0.0), extent=np.array([0.20, 0.15]))
     assert main.tolist() == [-1, 0]
+
+
+def test_of_two_clusters_scored_alike_the_one_on_the_confident_segments_is_the_person():
+    """A simulated robot-path scene (seed 578, of seeds the project is not tuned on): a woman reaching up
+    13.3 m out scores 3.00 on her own cluster (11 mask points, 7 in the core of her confident segments) and
+    3.00 on the background 1.7 m behind her (12 mask points, 4 in the core). The tie went to the one with
+    more mask points, and she was fitted 2.6 m deep; points on the segments the camera sees are the body,
+    and she keeps her own. `_assign` breaks equal scores by core points, then by mask points
+    (counterfactual: `core_tie_break` off)."""
+    from smplify3d_ros.lidar.associate import _assign
+
+    sim, k, own = robot_scene_person(578, 3, 2)
+    assert len(own) >= 8
+    for config, keeps in ((CONFIG, True), (make_config(core_tie_break=False), False)):
+        taken = extracted(sim, k, config).indices
+        assert keeps_own_points(taken, own) == keeps, (keeps, len(taken), int(np.isin(taken, own).sum()), len(own))
+    score = np.array([[3.0, 3.0]])
+    tied = {"in_mask": np.array([[11, 12]]), "exclusive": np.array([[8, 12]]), "core": np.array([[7, 4]])}
+    assert _assign(score, score > 0, tied, CONFIG)[0].tolist() == [0]
+    tied["core"] = np.array([[4, 4]])
+    assert _assign(score, score > 0, tied, CONFIG)[0].tolist() == [1]

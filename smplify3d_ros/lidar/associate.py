@@ -427,10 +427,15 @@ def _assign(
     """(P,) main clusters and (C,) how many people hold each cluster as their main: those of `people`
     (default: everyone) taken greedily by score, best first, on top of `main` (-1: none; default: nobody
     has one) and `owners`; a cluster several people still without one qualify for goes first to the one
-    who looks larger (`_in_front`, from `extent` (P,), the skeletons' extents)."""
+    who looks larger (`_in_front`, from `extent` (P,), the skeletons' extents). Of equal keys, the pair
+    with more points in the core of the person's confident segments goes first (`core_tie_break`), then
+    the one with more mask points: points on the segments the camera sees are the body, those beside
+    them may be what is seen past it (a woman 13.3 m out scored alike on her own cluster, 7 core points,
+    and on the background 1.7 m behind her, 4, and was fitted there with its one more mask point; seed
+    578, docs/benchmarks.md, "Equal scores: the cluster on the confident segments")."""
     main = np.full(len(score), -1) if main is None else main.copy()
     owners = np.zeros(score.shape[1], np.int64) if owners is None else owners.copy()
-    in_mask, exclusive = counts["in_mask"], counts["exclusive"]
+    in_mask, exclusive, core = counts["in_mask"], counts["exclusive"], counts["core"]
     qualified = body_like & (score > 0)
     if people is not None:
         qualified &= np.isin(np.arange(len(score)), people)[:, None]
@@ -442,8 +447,8 @@ def _assign(
             break
         k, j = people[live], clusters[live]
         key = score[k, j] * _in_front(k, j, extent, score.shape[1], config.contest_extent_power)
-        # Best first; among equal keys, more mask points first.
-        best = live[np.lexsort((-in_mask[k, j], -key))[0]]
+        tie = core[k, j] if config.core_tie_break else np.zeros(len(live))
+        best = live[np.lexsort((-in_mask[k, j], -tie, -key))[0]]
         pending[best] = False
         k, j = people[best], clusters[best]
         if owners[j] > 0 and exclusive[k, j] < config.share_min_exclusive * in_mask[k, j]:

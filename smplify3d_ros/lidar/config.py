@@ -57,6 +57,7 @@ class ExtractionConfig:
     coverage_full_score: float  # a covered part counts 1 when its keypoints score this, in proportion below
     shared_weight: float  # weight of mask points another skeleton also covers, in the cluster score
     share_min_exclusive: float  # fraction of exclusive mask points for two people to share a cluster
+    core_tie_break: bool  # among equal scores, more points in the confident segments' core first (false: mask points)
     contest_extent_power: float  # a cluster several people claim: score x (extent / largest claimant's)^this (0: off)
     core_radius_m: float  # points this close to a skeleton are its body or an occluder, not background
     refuting_parts: list[str]  # body parts (keypoints.BODY_PARTS) wide enough to refute a cluster
