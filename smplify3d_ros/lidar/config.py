@@ -70,6 +70,8 @@ class ExtractionConfig:
     occluder_min_points: int
     # a cluster with no point in a person's core is not their main cluster when another has this many there (0: off)
     outshone_core_points: int
+    # a main cluster with no core point gives way to one nobody holds with this many there (0: off)
+    unclaimed_core_points: int
     hidden_parts: list[str]  # body parts (keypoints.BODY_PARTS) that count as hidden by points in front
     hidden_weight: float  # score lost per hidden part whose core shows that many times more points in front of it
     second_look: bool  # people left without points are scored again once the others' bodies are placed
@@ -143,6 +145,7 @@ class ExtractionConfig:
         require(self.second_look_min_votes >= 1, "second_look_min_votes must be >= 1")
         require(self.occluder_min_points >= 0, "occluder_min_points must be >= 0")
         require(self.outshone_core_points >= 0, "outshone_core_points must be >= 0")
+        require(self.unclaimed_core_points >= 0, "unclaimed_core_points must be >= 0")
         require(self.depth_tolerance_m >= 0.0, "depth_tolerance_m must be >= 0")
         require(self.secondary_link_m >= 0.0, "secondary_link_m must be >= 0")
         require(self.body_depth_window_m > 0.0, "body_depth_window_m must be > 0")

@@ -323,6 +323,7 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "lidar.core_radius_m": (0, _INF),
     "lidar.refute_min_score": (0, 1), "lidar.score_level": (0, 1), "lidar.refute_ratio": (1, _INF),
     "lidar.occluder_min_points": (0, _INF), "lidar.outshone_core_points": (0, _INF),
+    "lidar.unclaimed_core_points": (0, _INF),
     "lidar.hidden_weight": (0, _INF), "lidar.second_look_min_votes": (1, _INF), "lidar.depth_tolerance_m": (0, _INF),
     "lidar.secondary_link_m": (0, _INF), "lidar.body_depth_window_m": (0, _INF),
     "lidar.depth_bound_radius_deg": (0, 90), "lidar.depth_bound_keypoint_score": (0, 1),
