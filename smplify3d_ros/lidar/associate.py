@@ -68,10 +68,13 @@ hides the body is nobody's main cluster: one with `occluder_min_points` mask poi
 core of a segment the detector saw with confidence, while other points lie there, no nearer (an object in front
 fills the mask over the joints the detector guessed; where it saw the body, the LiDAR sees the body's own
 few points). Pairs are taken greedily by score (a cluster several people qualify for, by score times
-(extent / the largest claimant's extent) ** `contest_extent_power`: the one behind looks smaller); each
-person gets one main cluster, and a cluster that is
+(extent / the largest claimant's extent) ** `contest_extent_power`: the one behind looks smaller; equal
+scores by more points in the core of the confident segments, `core_tie_break`, then by more mask points);
+each person gets one main cluster, and a cluster that is
 already someone's main is shared only when enough of the second person's mask points on it are exclusive
 (`share_min_exclusive`): two people touching in 3D form one cluster, yet each has their own region of it.
+Then a person whose main cluster has no point in that core takes instead the eligible cluster nobody holds
+with the most points there, at least `unclaimed_core_points`: a cluster with none there is seen past the body.
 People left without a main cluster get a second look (`second_look`) once the others are placed: a placed person's body
 hides nothing (what their cluster covers of a torso behind them is them, not a reason against the
 person behind), and a placed person holds only the points within `body_depth_window_m` of their own
@@ -470,9 +473,9 @@ def _unclaimed_core(
     the body; a cluster with none there is seen past it. Unused seed 3005's woman 8.0 m out, 18 % seen
     past two nearer people, scored 1.37 on the background 4 m behind her (no core point) and 1.25 on her
     own cluster (8 core points on her shin) and was fitted 4.3 m off. After the assignment, not before:
-    a nearer person's cluster fills the core of whoever stands behind them, and it is theirs (bystanders
-    of a crowd lost every point when any cluster with core points barred the others, as
-    `outshone_core_points` does at 20)."""
+    a nearer person's cluster fills the core of whoever stands behind them, and it is theirs (with
+    `outshone_core_points`, which bars before the assignment, at 5 instead of its 20, a person behind a
+    crowd's bystander lost every point to the bystander's cluster)."""
     if config.unclaimed_core_points <= 0:
         return main, owners
     main, owners, core = main.copy(), owners.copy(), counts["core"]
