@@ -97,6 +97,49 @@ def test_tuning_seeds_are_named_as_such(tmp_path, capsys):
     assert "With an upstream HMR" not in captured.out  # no HMR-seeded method was asked for
 
 
+def test_the_oracle_start_gives_the_fitter_the_true_body_at_its_hip_midpoint(tmp_path, capsys, monkeypatch):
+    """`builtin_init_truth_start` (named in --methods only) hands the fitter each person's true body as one
+    more start, its `transl` the true hip midpoint as the built-in starts' are; the robot path gets none,
+    and the report prints the two side by side."""
+    from smplify3d_ros.frame_fitter import FrameFitter
+    from smplify3d_ros.sim import world
+
+    seen, truth = {}, {}
+    simulate = world.simulate_scenario
+
+    def remember_truth(*args, **kwargs):
+        sim = simulate(*args, **kwargs)
+        truth.update({p.person_id: p for p in sim.people})
+        return sim
+
+    fit_observed = FrameFitter.fit_observed
+
+    def remember_starts(self, observed, options=None):
+        for p in observed.observations:
+            seen.setdefault(p.person_id, []).append(p.hypothesis)
+        return fit_observed(self, observed, options)
+
+    monkeypatch.setattr(world, "simulate_scenario", remember_truth)
+    monkeypatch.setattr(FrameFitter, "fit_observed", remember_starts)
+    out = tmp_path / "oracle.json"
+    args = parse(["--scenes", "1", "--people", "1-1", "--methods",
+                  f"{methods.ROBOT_METHOD},builtin_init_truth_start", "--json", str(out), "--no-plot",
+                  "--no-progress", *FAST])  # fmt: skip
+    assert cli.run(args) == 0
+    assert "builtin_init_truth_start" not in methods.MAIN_METHODS
+    doc = json.loads(out.read_text())
+    assert [r["method"] for r in doc["rows"]] == [methods.ROBOT_METHOD, "builtin_init_truth_start"]
+    (person_id, starts), = seen.items()
+    robot, oracle = starts
+    assert robot is None
+    true = truth[person_id]
+    np.testing.assert_allclose(oracle.pose, true.params.pose)
+    np.testing.assert_allclose(oracle.shape, true.params.shape)
+    np.testing.assert_allclose(oracle.transl, np.asarray(true.keypoints3d, float)[[11, 12]].mean(0), atol=1e-6)
+    printed = capsys.readouterr().out
+    assert "against a perfect search" in printed and "| builtin_init_truth_start | VLP-16 |" in printed
+
+
 def test_unknown_scenario_and_method_are_errors(capsys):
     assert cli.run(parse(["--scenario", "moon", "--no-progress"])) == 2
     assert "unknown scenario 'moon'" in capsys.readouterr().err

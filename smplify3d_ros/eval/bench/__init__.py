@@ -15,7 +15,10 @@ method's fit, and scores the body against the ground truth:
 - with an upstream HMR (the simulator's CLIFF-like estimate, `SimFrame.hmr_init`, that no robot has):
   `hmr_init_root_aligned` (the estimate with its hip midpoint moved onto the truth's: the usual
   image-only figure), `hmr_init` (as it is), `hmr_init_icp` (+ rigid ICP, `FitOptions(optimize=False)`),
-  `smplify3d_single_stage` (Eq. 2 in one stage), `smplify3d_three_stage` (Eq. 11-14).
+  `smplify3d_single_stage` (Eq. 2 in one stage), `smplify3d_three_stage` (Eq. 11-14);
+- `builtin_init_truth_start` (only when named in `--methods`): the robot path with the true body as
+  one more start, an oracle: how far a perfect search would take the fits, and where the objective's
+  own minimum near the truth lies.
 
 Errors in mm: PVE (vertices), MPJPE over the 19 body joints, PA-MPJPE, MPJPE after aligning the hip
 midpoints; LiDAR methods are always reported unaligned. The main table reports the robot path by

@@ -51,6 +51,7 @@ class Method:
     fit: bool = True  # False: score the HMR estimate itself
     root_aligned: bool = False  # score after moving the hip midpoint onto the truth's
     external_init: bool = True  # give the fitter the HMR estimate
+    truth_start: bool = False  # the true body as one more start beside the built-in ones (an oracle)
     scheme: str | None = None  # override the profile's optimizer scheme
     options: FitOptions = field(default_factory=FitOptions)
     label: str = ""  # name in plots
@@ -65,6 +66,11 @@ METHODS: dict[str, Method] = {
         Method("smplify3d_single_stage", scheme="single_stage", label="SMPLify-3D single-stage"),
         Method("smplify3d_three_stage", label="SMPLify-3D three-stage"),
         Method("builtin_init_three_stage", external_init=False, label="built-in init, three-stage"),
+        # what a perfect search could give the robot path: the true body competes with the built-in starts
+        # (in the slot of a track's warm start) and goes on through the same refinement, ICP and stages;
+        # where it leads, the fit ends where the objective's minimum near the truth lies
+        Method("builtin_init_truth_start", external_init=False, truth_start=True,
+               label="built-in init + true start (oracle)"),
         Method("ablation_no_chamfer", options=FitOptions(use_chamfer=False), label="without L_3D"),
         Method(
             "ablation_no_occlusion_prior",
@@ -278,7 +284,8 @@ def evaluate_scene(
         start = time.perf_counter()
         if method.fit:
             observations = [
-                dataclasses.replace(p, init=sim.hmr_init[p.person_id] if method.external_init else None)
+                dataclasses.replace(p, init=sim.hmr_init[p.person_id] if method.external_init else None,
+                                    hypothesis=_true_start(truth[p.person_id]) if method.truth_start else None)
                 for p in people
             ]
             fitter = FrameFitter(setup.config, setup.fitters[method.scheme])
@@ -297,6 +304,14 @@ def evaluate_scene(
                               scored_chamfer_m=_finite(surface[0]), scored_points_to_mesh_m=_finite(surface[1]),
                               value=value, seconds=seconds, people_in_fit=len(people)))
     return cases
+
+
+def _true_start(person) -> Any:
+    """A simulated person's true body as a start (`PersonObservation.hypothesis`), whose `transl` is the
+    hip midpoint, as the built-in starts' are (`Fitter._placed_state`), not the model's root."""
+    params = person.params.copy()
+    params.transl = np.asarray(person.keypoints3d, np.float64)[[11, 12]].mean(axis=0)
+    return params
 
 
 def _finite(x: float) -> float | None:

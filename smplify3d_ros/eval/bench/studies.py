@@ -125,6 +125,11 @@ def run_main(run: BenchRun, setup_for: Callable[..., Setup], default_distance: t
         extra["families"] = family_rows(cases, ROBOT_METHOD, sensor, missed_m)
         tables += [f"Robot path ({ROBOT_METHOD}: built-in initializer, raw scan, the node's frame path), by band:",
                    band_table(extra["bands"]), "Robot path by true pose family:", band_table(extra["families"])]
+    oracle = [m for m in run.methods if METHODS[m].truth_start]
+    if oracle:
+        compared = [r for r in rows if r["method"] in (ROBOT_METHOD, *oracle)]
+        tables += ["The robot path against a perfect search (the true body as one more start: an oracle, no robot "
+                   "has it):", markdown_table(compared)]
     hmr = [m for m in run.methods if METHODS[m].external_init and m != ROBOT_METHOD]
     if "smplify3d_three_stage" in hmr:
         extra["bands_with_hmr"] = band_rows(cases, "smplify3d_three_stage", sensor, bench, missed_m)
