@@ -12,12 +12,16 @@ import sys
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from smplify3d_ros.eval import metrics
 from smplify3d_ros.fitting.options import FitOptions
+
+if TYPE_CHECKING:
+    from smplify3d_ros.sim.world import SimPerson
+    from smplify3d_ros.types import BodyParams
 
 SENSOR_ALIASES = {"vlp16": "vlp16", "ouster32": "os1_32", "ouster64": "os1_64", "ouster128": "os1_128"}
 SENSOR_LABELS = {"vlp16": "VLP-16", "os1_32": "Ouster-32", "os1_64": "Ouster-64", "os1_128": "Ouster-128",
@@ -306,7 +310,7 @@ def evaluate_scene(
     return cases
 
 
-def _true_start(person) -> Any:
+def _true_start(person: SimPerson) -> BodyParams:
     """A simulated person's true body as a start (`PersonObservation.hypothesis`), whose `transl` is the
     hip midpoint, as the built-in starts' are (`Fitter._placed_state`), not the model's root."""
     params = person.params.copy()
