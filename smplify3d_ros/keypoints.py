@@ -7,6 +7,8 @@ are defined by the keypoints that bound them, as in the thesis (Sec. 3.2).
 
 from __future__ import annotations
 
+import numpy as np
+
 COCO17_NAMES: tuple[str, ...] = (
     "nose",
     "left_eye",
@@ -110,3 +112,9 @@ PART_DRIVING_JOINTS: dict[str, tuple[str, ...]] = {
 # Keypoints used by the reprojection term (reference: COCO joints 0 to 15; the ankles' index 16 is
 # excluded there only by an off-by-one, we keep all 17) and the root used for 2D alignment (hip midpoint).
 HIP_INDICES: tuple[int, int] = (KP["left_hip"], KP["right_hip"])
+
+
+def hip_midpoint(keypoints3d: np.ndarray) -> np.ndarray:
+    """(3,) float64 the midpoint of the hips of COCO-17 keypoints (17, 3): a body's root (a fit's, a
+    simulated person's, the built-in starts' `transl`)."""
+    return np.asarray(keypoints3d, np.float64)[list(HIP_INDICES)].mean(axis=0)

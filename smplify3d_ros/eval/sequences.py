@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from smplify3d_ros.eval import metrics
+from smplify3d_ros.keypoints import hip_midpoint
 
 VARIANTS = ("tracked", "single_frame")
 DETECTORS = ("track_ids", "anonymous")
@@ -90,7 +91,7 @@ def _match(fits: list[Any], sim: Any) -> dict[int, Any]:
     """True person id -> its fit: the nearest fitted pelvis within 1 m (greedy, nearest pairs first)."""
     from smplify3d_ros.tracking.tracker import pelvis
 
-    truths = {p.person_id: np.asarray(p.keypoints3d, np.float64)[[11, 12]].mean(0) for p in sim.people}
+    truths = {p.person_id: hip_midpoint(p.keypoints3d) for p in sim.people}
     pairs = sorted((float(np.linalg.norm(pelvis(f) - c)), pid, k) for k, f in enumerate(fits)
                    for pid, c in truths.items())
     out, used = {}, set()

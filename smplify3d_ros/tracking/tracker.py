@@ -23,7 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from smplify3d_ros.geometry import move_body, transform
-from smplify3d_ros.keypoints import HIP_INDICES
+from smplify3d_ros.keypoints import HIP_INDICES, hip_midpoint
 from smplify3d_ros.tracking.association import associate, box_iou
 from smplify3d_ros.tracking.config import TrackingConfig
 from smplify3d_ros.tracking.motion import MotionFilter
@@ -47,7 +47,7 @@ def _slerp(a: np.ndarray, b: np.ndarray, weight: float) -> np.ndarray:
 
 def pelvis(fit: BodyFit) -> np.ndarray:
     """(3,) the hip midpoint of a fit (camera frame)."""
-    return np.asarray(fit.keypoints3d, np.float64)[list(HIP_INDICES)].mean(axis=0)
+    return hip_midpoint(fit.keypoints3d)
 
 
 def surface_point(obs: PersonObservation) -> np.ndarray | None:

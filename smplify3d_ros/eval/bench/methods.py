@@ -18,6 +18,7 @@ import numpy as np
 
 from smplify3d_ros.eval import metrics
 from smplify3d_ros.fitting.options import FitOptions
+from smplify3d_ros.keypoints import hip_midpoint
 
 if TYPE_CHECKING:
     from smplify3d_ros.sim.world import SimPerson
@@ -186,7 +187,7 @@ def person_context(sim: Any, obs: Any, truth: Any, setup: Setup) -> dict[str, An
     from smplify3d_ros.sim.scene import make_mount
 
     mount = make_mount(setup.sim.mount)
-    hips = np.asarray(truth.keypoints3d, np.float64)[[11, 12]].mean(0)
+    hips = hip_midpoint(truth.keypoints3d)
     lidar_origin = sim.frame.T_cam_lidar[:3, 3]
     density = (
         metrics.lidar_density(
@@ -314,7 +315,7 @@ def _true_start(person: SimPerson) -> BodyParams:
     """A simulated person's true body as a start (`PersonObservation.hypothesis`), whose `transl` is the
     hip midpoint, as the built-in starts' are (`Fitter._placed_state`), not the model's root."""
     params = person.params.copy()
-    params.transl = np.asarray(person.keypoints3d, np.float64)[[11, 12]].mean(axis=0)
+    params.transl = hip_midpoint(person.keypoints3d)
     return params
 
 
