@@ -487,7 +487,8 @@ class FrameFitter:
         rows = front[:, 1] / front[:, 2]  # image rows of the joints in front of the camera
         height = max(float(obs.bbox[3] - obs.bbox[1]), float(np.ptp(rows)) if rows.size else 0.0, 1.0)
         off = fit.quality.points_to_mesh_m
-        return (FLAG_DIVERGED in fit.flags or not fit.quality.reprojection_px <= cfg.lost_reprojection * height
+        limit = float(np.hypot(cfg.lost_reprojection * height, cfg.lost_reprojection_floor_px))
+        return (FLAG_DIVERGED in fit.flags or not fit.quality.reprojection_px <= limit
                 or (np.isfinite(off) and off > cfg.lost_points_to_mesh_m) or self._faces_away(fit, obs, K))
 
     def _faces_away(self, fit: BodyFit, obs: PersonObservation, K: np.ndarray) -> bool:

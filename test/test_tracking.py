@@ -315,6 +315,30 @@ def test_a_half_hidden_person_is_lost_by_their_size_in_the_image_not_their_box()
                       obs, K)
 
 
+def test_a_far_persons_warm_fit_is_not_lost_by_the_detectors_pixel_noise():
+    """A person 40 px tall reprojecting 4 px off is within a detector's own noise (it does not shrink with
+    the person): with `lost_reprojection_floor_px` the warm fit stands, without it it is refitted cold; a
+    fit 15 px off is lost either way."""
+    from node_support import StubFitter
+
+    from smplify3d_ros.frame_fitter import FrameFitter
+
+    K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    far = np.zeros((17, 3), np.float32)
+    far[:, 1], far[:, 2] = np.linspace(-0.85, 0.85, 17), 21.25  # 1.7 m tall at 21.25 m: 40 px
+    obs = dataclasses.replace(observation(2, 0.0), bbox=np.array([310.0, 220.0, 330.0, 260.0]))  # 40 px
+    fit = dataclasses.replace(fit_at(2, 0.0), keypoints3d=far)
+
+    def lost(floor_px: float, reprojection_px: float) -> bool:
+        core = load_config(overrides={"tracking": {"lost_reprojection_floor_px": floor_px}})
+        path = FrameFitter(core, fitter=StubFitter(), tracker=Tracker(core.tracking), warm_fitter=StubFitter())
+        quality = dataclasses.replace(fit.quality, reprojection_px=reprojection_px, points_to_mesh_m=0.01)
+        return path._lost(dataclasses.replace(fit, quality=quality), obs, K)
+
+    assert lost(0.0, 4.0) and not lost(5.0, 4.0)  # 0.08 x 40 px = 3.2 px; with the floor hypot(3.2, 5) = 5.9 px
+    assert lost(0.0, 15.0) and lost(5.0, 15.0)
+
+
 def test_a_sparse_persons_warm_fit_is_not_lost_by_mesh_without_points_near_it():
     """A far or half-hidden person's points all lie on the warm fit's mesh while most of the visible mesh has
     no point near it (the symmetric chamfer is large): the fit keeps its person. Points 10 cm off it: lost."""

@@ -251,7 +251,8 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     "tracking.pose_smoothing": (0, 1),
     "tracking.accel_sigma_mps2": (0, _INF), "tracking.position_sigma_m": (0, _INF),
     "tracking.image_depth_sigma_m": (0, _INF),
-    "tracking.lost_reprojection": (0, _INF), "tracking.lost_points_to_mesh_m": (0, _INF),
+    "tracking.lost_reprojection": (0, _INF), "tracking.lost_reprojection_floor_px": (0, _INF),
+    "tracking.lost_points_to_mesh_m": (0, _INF),
     "tracking.lost_face_offset_m": (0, _INF),
     # people
     "people.max_people": (1, 100), "people.min_keypoints": (1, 17), "people.keypoint_margin": (0, 10),

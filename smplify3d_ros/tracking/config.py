@@ -38,6 +38,7 @@ class TrackingConfig:
     refresh_timeout_s: float  # longest wait for a background refresh (its process starting included)
     refresh_nice: int  # scheduling niceness of the helper process (0-19: higher yields the CPU sooner)
     lost_reprojection: float  # a warm fit reprojecting worse than this (fraction of the person's image height) is lost
+    lost_reprojection_floor_px: float  # px, added in quadrature to that limit: a detector's own pixel noise
     lost_points_to_mesh_m: float  # ... or whose points lie farther than this from its mesh (mean)
     lost_face_offset_m: float  # ... or whose face points the other way from the detected face by this much (0: no test)
     lost_background: bool  # a lost warm fit is output (flagged) while its cold refit runs in the helper process
@@ -62,4 +63,5 @@ class TrackingConfig:
                 "accel_sigma_mps2, position_sigma_m and image_depth_sigma_m must be > 0")
         require(self.lost_reprojection > 0 and self.lost_points_to_mesh_m > 0,
                 "lost_reprojection and lost_points_to_mesh_m must be > 0")
+        require(self.lost_reprojection_floor_px >= 0, "lost_reprojection_floor_px must be >= 0")
         require(self.lost_face_offset_m >= 0, "lost_face_offset_m must be >= 0 (0: no test)")
