@@ -23,7 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from smplify3d_ros.geometry import move_body, transform
-from smplify3d_ros.keypoints import HIP_INDICES, hip_midpoint
+from smplify3d_ros.keypoints import hip_midpoint
 from smplify3d_ros.tracking.association import associate, box_iou
 from smplify3d_ros.tracking.config import TrackingConfig
 from smplify3d_ros.tracking.motion import MotionFilter
@@ -202,9 +202,9 @@ class Tracker:
             return last + shift
         rate = track.age_s(stamp_ns) / dt_before
         if mode == "filtered":
-            hips = list(HIP_INDICES)
-            relative, relative_before = last - last[hips].mean(0), before - before[hips].mean(0)
-            return last[hips].mean(0) + shift + relative + (relative - relative_before) * rate
+            root, root_before = hip_midpoint(last), hip_midpoint(before)
+            relative, relative_before = last - root, before - root_before
+            return root + shift + relative + (relative - relative_before) * rate
         return last + (last - before) * rate
 
     def expected_depth(self, person_ids: np.ndarray, stamp_ns: int) -> np.ndarray:
@@ -282,8 +282,7 @@ class Tracker:
             params.pose = _slerp(joints, params.pose, cfg.pose_smoothing)
             params.root_orient = _slerp(root, params.root_orient[None], cfg.pose_smoothing)[0]
         body = pose([params])[0]
-        shift = (track.motion.position if cfg.filter_position else pelvis(fit)) - \
-            body.keypoints3d[list(HIP_INDICES)].mean(axis=0)
+        shift = (track.motion.position if cfg.filter_position else pelvis(fit)) - hip_midpoint(body.keypoints3d)
         params.transl = params.transl + shift
         return replace(fit, params=params, vertices=(body.vertices + shift).astype(np.float32),
                        keypoints3d=(body.keypoints3d + shift).astype(np.float32),
