@@ -114,6 +114,13 @@ class InitConfig:
     start_knee_flexion_deg: float
     bent_trunk_hypotheses: int
     start_trunk_pitch_deg: float
+    image_trunk_max_pitch_deg: float
+    image_trunk_min_pitch_deg: float
+    image_trunk_pitch_step_deg: float
+    image_trunk_min_px: float
+    image_trunk_short_ratio: float
+    image_trunk_points_radius: float
+    image_trunk_min_rise_m: float
     swap_hypotheses: list[str]
     swap_hypothesis_margin: float
 
@@ -138,6 +145,13 @@ class InitConfig:
         require(0 <= self.start_knee_flexion_deg <= 150, "start_knee_flexion_deg must be in [0, 150]")
         require(self.bent_trunk_hypotheses >= 0, "bent_trunk_hypotheses must be >= 0 (0: none)")
         require(0 <= self.start_trunk_pitch_deg <= 90, "start_trunk_pitch_deg must be in [0, 90]")
+        require(0 <= self.image_trunk_max_pitch_deg <= 125, "image_trunk_max_pitch_deg must be in [0, 125] (0: off)")
+        require(self.image_trunk_min_pitch_deg >= 0, "image_trunk_min_pitch_deg must be >= 0")
+        require(self.image_trunk_pitch_step_deg > 0, "image_trunk_pitch_step_deg must be > 0")
+        require(self.image_trunk_min_px >= 0, "image_trunk_min_px must be >= 0")
+        require(self.image_trunk_short_ratio >= 0, "image_trunk_short_ratio must be >= 0 (0: never)")
+        require(self.image_trunk_points_radius > 0, "image_trunk_points_radius must be > 0")
+        require(self.image_trunk_min_rise_m >= 0, "image_trunk_min_rise_m must be >= 0")
         require(0.0 < self.swap_hypothesis_margin <= 1.0, "swap_hypothesis_margin must be in (0, 1]")
         unknown = sorted(set(self.swap_hypotheses) - set(SWAP_GROUPS))
         require(not unknown, f"swap_hypotheses: unknown keypoint groups {unknown}; known: {list(SWAP_GROUPS)}")

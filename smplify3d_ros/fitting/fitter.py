@@ -145,6 +145,7 @@ class Fitter:
         # bent over at the hips: the pelvis pitched forward (`initializer.pitched_root_orient`) and the hips
         # flexed as much, so that the legs stay upright
         self._bent_start_pose = self._builtin_start_pose(self.config.init.start_trunk_pitch_deg)
+        self._pitched_poses: dict[float, np.ndarray] = {}  # `_pitched_start_pose`'s
         self._keypoints_only = torch.zeros(1, dtype=torch.long, device=self.device)
         # the keypoint orders every person's starts are tried in: as detected (None), then each of
         # `init.swap_hypotheses`' swaps (a person's own `hypothesis`, a track's warm start, in the one it
@@ -153,6 +154,13 @@ class Fitter:
                                                           for group in config.init.swap_hypotheses]
         self.part_of_face_np = self.model.part_of_face.cpu().numpy()
         self._around = free_space.vertex_faces(self.faces_np, int(self.faces_np.max()) + 1)
+
+    def _pitched_start_pose(self, pitch_deg: float) -> np.ndarray:
+        """The bent start's pose for a pelvis pitched by `pitch_deg` (hips flexed as much), cached."""
+        key = round(float(pitch_deg), 3)
+        if key not in self._pitched_poses:
+            self._pitched_poses[key] = self._builtin_start_pose(key)
+        return self._pitched_poses[key]
 
     def _builtin_start_pose(self, hip_deg: float = 0.0, knee_deg: float = 0.0) -> np.ndarray:
         """(J, 3) pose the built-in initializer starts every person from: the anatomical neutral
@@ -257,7 +265,8 @@ class Fitter:
         standing, then the first `init.flexed_leg_hypotheses` of them again with flexed legs where the
         image shows a thigh, or the knees and the points can tell (`initializer.flexed_legs_tried`), the
         first `init.bent_trunk_hypotheses` bent over at the hips by `init.start_trunk_pitch_deg` for a
-        person with LiDAR points, for each of `init.swap_hypotheses`' left/right keypoint groups the best
+        person with LiDAR points, and one more bent as far as the image's trunk reads
+        (`initializer.image_trunk_start`), for each of `init.swap_hypotheses`' left/right keypoint groups the best
         guess of the detection read with that group swapped (a detector's swap; a swapped shoulder or hip
         pair turns the heading read from it), then the person's own `hypothesis` (a track's warm start),
         if any, in the reading it projects closest to (`_reading_of`)."""
@@ -287,6 +296,10 @@ class Fitter:
                 pitch = math.radians(cfg.init.start_trunk_pitch_deg)
                 starts += [(self._bent_start_pose, initializer.pitched_root_orient(root, pitch), pelvis)
                            for root, pelvis in hypotheses[: cfg.init.bent_trunk_hypotheses]]
+                read = initializer.image_trunk_start(p, K, cfg.init, [root for root, _ in hypotheses],
+                                                     hypotheses[0][1])
+                if read is not None:
+                    starts.append((self._pitched_start_pose(read.pitch_deg), read.root_orient, read.pelvis))
             for pose, root, pelvis in starts:
                 batch.hypotheses[i].append(BodyParams(self.model.name, mean_shape.copy(), pose.copy(),
                                                       root.copy(), pelvis.copy()))

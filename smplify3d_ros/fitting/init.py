@@ -19,10 +19,14 @@ position and heading are those of the real camera:
    the points that hit each limb (`fitting.limbs`), with the anatomical priors only, from every
    hypothesis, standing and, for the first headings, with flexed legs where a thigh is seen, or the
    knees and the points can tell (`flexed_legs_tried`), and, for people with points, bent over at the
-   hips (`pitched_root_orient`); the full objective picks the hypothesis (`fitter.Fitter._refine_builtin`).
+   hips (`pitched_root_orient`): by a fixed pitch, and by the pitch and heading whose trunk projects onto
+   the image's hips-to-shoulders line (`image_trunk_start`); the full objective picks the hypothesis
+   (`fitter.Fitter._refine_builtin`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -276,6 +280,108 @@ def pitched_root_orient(root_orient: np.ndarray, pitch: float) -> np.ndarray:
     """`root_orient` (axis-angle) with the body pitched forward by `pitch` (rad) about its own left axis
     (canonical x): the upper body leans towards where the person faces, the pelvis with it."""
     return (Rotation.from_rotvec(root_orient) * Rotation.from_rotvec([pitch, 0.0, 0.0])).as_rotvec()
+
+
+@dataclass
+class TrunkStart:
+    """A bent start read from the image (`image_trunk_start`)."""
+
+    root_orient: np.ndarray  # (3,) axis-angle, the upright heading's pitched forward by `pitch_deg`
+    pelvis: np.ndarray  # (3,) camera frame, m
+    pitch_deg: float  # forward pitch of the pelvis, deg; the start pose flexes the hips as much
+
+
+def image_trunk_start(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, roots: list[np.ndarray],
+                      pelvis: np.ndarray) -> TrunkStart | None:
+    """The bent start whose trunk (hips to shoulders, `torso_height` long) projects closest to the
+    image's: over each heading hypothesis (`roots`, upright) and each pitch from 0 to
+    `image_trunk_max_pitch_deg` in `image_trunk_pitch_step_deg` steps, the one whose trunk vector (px)
+    lies nearest the keypoints' hips-to-shoulders one. A trunk horizontal in the image is a person side-on
+    bent over, leaning the way they face, which picks the heading.
+
+    A trunk short in the image (under `image_trunk_short_ratio` x an upright one's length there) is bent
+    towards the camera or away from it, which the image alone cannot tell. Where the points around the
+    shoulders' pixel lie at least `image_trunk_min_rise_m` nearer or deeper than those around the hips'
+    (`_points_rise`), only trunks bent that way are read, and none shallower than that difference. It
+    is a lower bound, not a measure: the hips of a trunk bent towards the camera hide behind it, and
+    their pixel's points lie on the trunk. A smaller difference says nothing (a person side-on, bent over
+    7.9 m out, read 5 cm); over a trunk the image sees at length, it reads the arms and the background as
+    much as the trunk (a person side-on, bent over 5.8 m out, read 0.2 m deeper at the shoulders, whose
+    were 0.1 m nearer).
+
+    The pelvis depth (`pelvis`, the upright starts') came from the torso's points (the bent starts are
+    for people with points), which lie around the middle of the trunk, not over the pelvis: the start's
+    pelvis moves along its ray by as much as the pitched trunk's middle moved in depth from the upright
+    one's. None where both hips or both shoulders are not confident (`keypoint_conf`), where an upright
+    trunk would stand less than `image_trunk_min_px` tall (a pixel of keypoint noise turns it by several
+    degrees: a person bent over 13.7 m out, 12 px, was read side-on and fitted 123 mm off, 69 mm
+    without), where the reading is pitched less than `image_trunk_min_pitch_deg` (upright people whose
+    trunks look short, a child's or a turned one's, read 20-45 deg on tuning seeds 0-79, people bending
+    over 59-95 deg), or with
+    `image_trunk_max_pitch_deg` 0.
+
+    Measured on the people bending over of seeds first run on 2026-12-07 (VLP-16, 2-8 m): a person bent
+    towards the camera 2.6 m out was fitted 293 mm off (MPJPE) from the fixed 55 deg start, 29 mm from
+    this one; two side-on, 204 -> 43 and 184 -> 64 mm (docs/benchmarks.md, "A bent start read from the
+    image")."""
+    kp = obs.keypoints
+    if cfg.image_trunk_max_pitch_deg <= 0.0 or not (
+            _confident(kp, ("left_hip", "right_hip"), cfg.keypoint_conf)
+            and _confident(kp, ("left_shoulder", "right_shoulder"), cfg.keypoint_conf)):
+        return None
+    pelvis = np.asarray(pelvis, np.float64)
+    hips, shoulders = _mid(kp, "left_hip", "right_hip"), _mid(kp, "left_shoulder", "right_shoulder")
+    observed = shoulders - hips
+    upright_px = K[0, 0] * cfg.torso_height / max(float(pelvis[2]), 1e-3)
+    if upright_px < cfg.image_trunk_min_px:
+        return None
+    rise = None
+    if np.linalg.norm(observed) < cfg.image_trunk_short_ratio * upright_px:
+        rise = _points_rise(obs, K, hips, shoulders, cfg)
+        if rise is not None and abs(rise) < cfg.image_trunk_min_rise_m:
+            rise = None
+    # every (heading hypothesis, pitch): the trunk's direction in the camera frame, cos(pitch) x the
+    # upright body's up + sin(pitch) x its forward
+    frames = np.stack([Rotation.from_rotvec(root).as_matrix() for root in roots])  # (H, 3, 3)
+    upward, forward = frames[:, :, 1], frames[:, :, 2]
+    pitches = np.radians(np.arange(0.0, cfg.image_trunk_max_pitch_deg + 1e-9, cfg.image_trunk_pitch_step_deg))
+    trunk = cfg.torso_height * (np.cos(pitches)[None, :, None] * upward[:, None, :]
+                                + np.sin(pitches)[None, :, None] * forward[:, None, :])  # (H, P, 3)
+    depth = pelvis[2] - 0.5 * (trunk[..., 2] - cfg.torso_height * upward[:, None, 2])  # its middle held
+    at = pelvis * (np.maximum(depth, 1e-3) / pelvis[2])[..., None]
+    top = at + trunk
+    ok = (depth > 0.0) & (top[..., 2] > 0.0)
+    if rise is not None:
+        ok &= trunk[..., 2] * rise >= 0.0  # bent the way the points say, towards the camera or away
+    z_at, z_top = np.where(ok, at[..., 2], 1.0), np.where(ok, top[..., 2], 1.0)
+    fu, fv = K[0, 0], K[1, 1]
+    du = fu * (top[..., 0] / z_top - at[..., 0] / z_at) - observed[0]
+    dv = fv * (top[..., 1] / z_top - at[..., 1] / z_at) - observed[1]
+    cost = np.hypot(du, dv)
+    if rise is not None:  # and no shallower than they say, in pixels at the pelvis
+        cost = np.hypot(cost, fu * np.maximum(0.0, abs(rise) - np.abs(trunk[..., 2])) / z_at)
+    cost = np.where(ok, cost, np.inf)
+    y, p = np.unravel_index(int(np.argmin(cost)), cost.shape)
+    if not np.isfinite(cost[y, p]) or np.degrees(pitches[p]) < cfg.image_trunk_min_pitch_deg:
+        return None
+    return TrunkStart(pitched_root_orient(roots[y], float(pitches[p])), at[y, p], float(np.degrees(pitches[p])))
+
+
+def _points_rise(obs: PersonObservation, K: np.ndarray, hips: np.ndarray, shoulders: np.ndarray,
+                 cfg: InitConfig) -> float | None:
+    """How much deeper (m, camera z) the person's points around the shoulders' pixel lie than those around
+    the hips' (the median of each, within `image_trunk_points_radius` x the box's height of the pixel;
+    None with fewer than two around either): a trunk bent towards the camera reads negative."""
+    if len(obs.points) == 0:
+        return None
+    points = np.asarray(obs.points, np.float64)
+    uv = np.stack([K[0, 0] * points[:, 0] / points[:, 2] + K[0, 2], K[1, 1] * points[:, 1] / points[:, 2] + K[1, 2]], 1)
+    radius = cfg.image_trunk_points_radius * float(obs.bbox[3] - obs.bbox[1])
+    near_shoulders = np.linalg.norm(uv - shoulders, axis=1) <= radius
+    near_hips = np.linalg.norm(uv - hips, axis=1) <= radius
+    if near_shoulders.sum() < 2 or near_hips.sum() < 2:
+        return None
+    return float(np.median(points[near_shoulders, 2]) - np.median(points[near_hips, 2]))
 
 
 def _frame(up: np.ndarray, forward: np.ndarray) -> np.ndarray:
