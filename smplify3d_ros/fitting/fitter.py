@@ -297,7 +297,7 @@ class Fitter:
                 starts += [(self._bent_start_pose, initializer.pitched_root_orient(root, pitch), pelvis)
                            for root, pelvis in hypotheses[: cfg.init.bent_trunk_hypotheses]]
                 read = initializer.image_trunk_start(p, K, cfg.init, [root for root, _ in hypotheses],
-                                                     hypotheses[0][1])
+                                                     hypotheses[0][1]) if hypotheses else None
                 if read is not None:
                     starts.append((self._pitched_start_pose(read.pitch_deg), read.root_orient, read.pelvis))
             for pose, root, pelvis in starts:

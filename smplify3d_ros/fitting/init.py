@@ -330,6 +330,8 @@ def image_trunk_start(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, ro
             and _confident(kp, ("left_shoulder", "right_shoulder"), cfg.keypoint_conf)):
         return None
     pelvis = np.asarray(pelvis, np.float64)
+    if not roots or not (np.isfinite(pelvis).all() and pelvis[2] > 0.0):
+        return None
     hips, shoulders = _mid(kp, "left_hip", "right_hip"), _mid(kp, "left_shoulder", "right_shoulder")
     observed = shoulders - hips
     upright_px = K[0, 0] * cfg.torso_height / max(float(pelvis[2]), 1e-3)
