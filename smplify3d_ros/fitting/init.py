@@ -317,8 +317,7 @@ def image_trunk_start(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, ro
     degrees: a person bent over 13.7 m out, 12 px, was read side-on and fitted 123 mm off, 69 mm
     without), where the reading is pitched less than `image_trunk_min_pitch_deg` (upright people whose
     trunks look short, a child's or a turned one's, read 20-45 deg on tuning seeds 0-79, people bending
-    over 59-95 deg), or with
-    `image_trunk_max_pitch_deg` 0.
+    over 59-95 deg), or with `image_trunk_max_pitch_deg` 0.
 
     Measured on the people bending over of seeds first run on 2026-12-07 (VLP-16, 2-8 m): a person bent
     towards the camera 2.6 m out was fitted 293 mm off (MPJPE) from the fixed 55 deg start, 29 mm from
