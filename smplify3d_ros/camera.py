@@ -47,6 +47,14 @@ def project_points(points: np.ndarray, camera: CameraModel, distort: bool = True
     return uv
 
 
+def pinhole_pixels(points: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(N, 3) camera-frame points -> (N, 2) pixels of the ideal pinhole camera `K` (undistorted image),
+    depths clamped to 1 mm: for the fitting core, which works in that image and is given K alone."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    z = np.maximum(points[:, 2], 1e-3)
+    return np.stack([K[0, 0] * points[:, 0] / z + K[0, 2], K[1, 1] * points[:, 1] / z + K[1, 2]], axis=1)
+
+
 def undistort_pixels(uv: np.ndarray, camera: CameraModel) -> np.ndarray:
     """(N, 2) distorted pixels -> (N, 2) pixels of the ideal pinhole camera with the same K."""
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)

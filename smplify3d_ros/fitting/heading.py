@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from smplify3d_ros.camera import pinhole_pixels
 from smplify3d_ros.fitting.config import InitConfig
 from smplify3d_ros.keypoints import KP
 
@@ -73,8 +74,7 @@ def torso_points(kp: np.ndarray, K: np.ndarray, points: np.ndarray, cfg: InitCon
     torso = np.array([kp[KP[n], :2] for n in TORSO])
     lo, hi = torso.min(0), torso.max(0)
     pad = cfg.torso_box_pad * (hi - lo)
-    z = np.maximum(points[:, 2], 1e-3)
-    uv = np.stack([K[0, 0] * points[:, 0] / z + K[0, 2], K[1, 1] * points[:, 1] / z + K[1, 2]], 1)
+    uv = pinhole_pixels(points, K)
     inside = np.all((uv >= lo - pad) & (uv <= hi + pad), axis=1)
     chest = points[inside]
     if len(chest) == 0:

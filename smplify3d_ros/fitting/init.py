@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from smplify3d_ros.camera import pinhole_pixels
 from smplify3d_ros.fitting.config import InitConfig
 from smplify3d_ros.fitting.heading import TORSO, estimate_heading, torso_points
 from smplify3d_ros.keypoints import BODY_PARTS, KP
@@ -376,7 +377,7 @@ def _points_rise(obs: PersonObservation, K: np.ndarray, hips: np.ndarray, should
     if len(obs.points) == 0:
         return None
     points = np.asarray(obs.points, np.float64)
-    uv = np.stack([K[0, 0] * points[:, 0] / points[:, 2] + K[0, 2], K[1, 1] * points[:, 1] / points[:, 2] + K[1, 2]], 1)
+    uv = pinhole_pixels(points, K)
     radius = cfg.image_trunk_points_radius * float(obs.bbox[3] - obs.bbox[1])
     near_shoulders = np.linalg.norm(uv - shoulders, axis=1) <= radius
     near_hips = np.linalg.norm(uv - hips, axis=1) <= radius

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from smplify3d_ros.camera import pinhole_pixels
 from smplify3d_ros.fitting.config import InitConfig
 from smplify3d_ros.keypoints import KP
 
@@ -33,7 +34,7 @@ def limb_depth_targets(keypoints: np.ndarray, K: np.ndarray, points: np.ndarray,
     if len(points) == 0 or depth <= 0:
         return out
     z = np.maximum(points[:, 2], 1e-3)
-    uv = np.stack([K[0, 0] * points[:, 0] / z + K[0, 2], K[1, 1] * points[:, 1] / z + K[1, 2]], 1)
+    uv = pinhole_pixels(points, K)
     near_person = np.abs(points[:, 2] - depth) <= cfg.limb_depth_band
     radius_px = cfg.limb_radius * 0.5 * (K[0, 0] + K[1, 1]) / depth
     for k in LIMB_KEYPOINTS:
