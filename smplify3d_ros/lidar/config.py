@@ -82,6 +82,22 @@ class ExtractionConfig:
     post_radius_m: float  # points this close across to their cluster's points above the bbox are a post's (0: off)
     post_min_points: int  # ... when at least this many of that cluster's points rise above the bbox
     post_min_rise: float  # ... the highest of them this fraction of the bbox's height above it
+    # Step 7 too: a column standing among a person's points is a post's (`columns.column_mask`).
+    column_max_radius_m: float  # largest column radius looked for (0: off)
+    column_min_radius_m: float  # smallest column radius looked for (a leg is thinner)
+    column_tolerance_m: float  # points this close to the circle are on it
+    column_trials: int  # circles tried through three of the person's points
+    column_checked: int  # ... of which at most this many, those with the most points on them, are tested in full
+    column_max_foot_m: float  # the column's lowest point lies at most this high
+    column_min_height_m: float  # ... and its points rise at least this far
+    column_top_gap_m: float  # ... to within this of the person's highest point
+    column_band_m: float  # height bands of this size
+    column_band_share: float  # a band holds it when this share of its points within the column's bearings are on it
+    column_band_pass: float  # ... and this share of the bands do
+    column_max_gap_m: float  # ... a band's points on it leave no gap wider than this across the line of sight
+    column_min_bands: int  # ... at least this many
+    column_band_points: int  # the column has this many points per band, on average
+    column_min_width: float  # ... spanning this many radii across the line of sight (median band)
     # Step 8: how far each person can be (`extract.depth_bounds`).
     depth_bound_radius_deg: float  # returns this close to a seen keypoint's ray are on or past the body (0: none)
     depth_bound_keypoint_score: float  # ... keypoints scored at least this (the camera sees the body there)
@@ -152,6 +168,21 @@ class ExtractionConfig:
         require(self.post_radius_m >= 0.0, "post_radius_m must be >= 0 (0: off)")
         require(self.post_min_points >= 1, "post_min_points must be >= 1")
         require(self.post_min_rise >= 0.0, "post_min_rise must be >= 0")
+        require(self.column_max_radius_m >= 0.0, "column_max_radius_m must be >= 0 (0: off)")
+        require(self.column_min_radius_m >= 0.0, "column_min_radius_m must be >= 0")
+        require(self.column_tolerance_m > 0.0, "column_tolerance_m must be > 0")
+        require(self.column_trials >= 1, "column_trials must be >= 1")
+        require(self.column_checked >= 1, "column_checked must be >= 1")
+        require(self.column_max_foot_m >= 0.0, "column_max_foot_m must be >= 0")
+        require(self.column_min_height_m >= 0.0, "column_min_height_m must be >= 0")
+        require(self.column_top_gap_m >= 0.0, "column_top_gap_m must be >= 0")
+        require(self.column_band_m > 0.0, "column_band_m must be > 0")
+        require(0.0 <= self.column_band_share <= 1.0, "column_band_share must be in [0, 1]")
+        require(0.0 <= self.column_band_pass <= 1.0, "column_band_pass must be in [0, 1]")
+        require(self.column_max_gap_m > 0.0, "column_max_gap_m must be > 0")
+        require(self.column_min_bands >= 1, "column_min_bands must be >= 1")
+        require(self.column_band_points >= 1, "column_band_points must be >= 1")
+        require(self.column_min_width >= 0.0, "column_min_width must be >= 0")
         require(0.0 <= self.depth_bound_radius_deg < 90.0, "depth_bound_radius_deg must be in [0, 90) (0: off)")
         require(0.0 <= self.depth_bound_keypoint_score <= 1.0, "depth_bound_keypoint_score must be in [0, 1]")
         require(self.depth_bound_min_keypoints >= 1, "depth_bound_min_keypoints must be >= 1")

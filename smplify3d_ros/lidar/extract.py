@@ -8,6 +8,7 @@
   4. clustering (`cluster.euclidean_clusters`) of the non-ground points inside any frustum or context;
   5. and 6. association (`associate.associate`): which clusters are whose, and one owner per point.
   7. posts (`without_posts`): the points of a post a person leans on, which rises above them, are not theirs;
+     nor are those of a column standing among their points (`columns.column_mask`), seen from near;
   8. how far each person can be (`depth_bounds`): the farthest returns along their confident keypoints' rays.
 
 Keypoints must be UNDISTORTED pixels (the caller undistorts detections with
@@ -27,7 +28,8 @@ from scipy.spatial import cKDTree
 
 from smplify3d_ros.camera import in_image, project_points
 from smplify3d_ros.lidar.associate import Skeleton, associate, in_bbox, person_skeleton, score_scale
-from smplify3d_ros.lidar.cluster import euclidean_clusters, scaled_coordinates
+from smplify3d_ros.lidar.cluster import euclidean_clusters, ground_aligned, scaled_coordinates
+from smplify3d_ros.lidar.columns import column_mask
 from smplify3d_ros.lidar.config import ExtractionConfig
 from smplify3d_ros.lidar.ground import CAMERA_UP, GroundPlane, fit_ground
 from smplify3d_ros.types import CameraModel
@@ -95,6 +97,23 @@ def without_posts(horizontal: np.ndarray, uv: np.ndarray, clusters: np.ndarray, 
             continue
         dist, _ = cKDTree(horizontal[above]).query(horizontal[mine], k=1)
         out[np.flatnonzero(mine)[dist < config.post_radius_m]] = -1
+    return out
+
+
+def without_columns(points: np.ndarray, ground: GroundPlane, owner: np.ndarray, n_people: int,
+                    config: ExtractionConfig) -> np.ndarray:
+    """`owner` (M,) with the points of a column standing among a person's points (a post they lean on,
+    seen from near, where nothing of it shows above them: `columns.column_mask`) taken from them (-1).
+    points: (M, 3) the candidates (camera frame)."""
+    if config.column_max_radius_m <= 0.0:
+        return owner
+    out = owner.copy()
+    for k in range(n_people):
+        mine = np.flatnonzero(owner == k)
+        if len(mine) == 0:
+            continue
+        horizontal, height = ground_aligned(points[mine], ground)
+        out[mine[column_mask(horizontal, height, config)]] = -1
     return out
 
 
@@ -197,6 +216,7 @@ def extract_people(
                       depth_range(len(keypoints), expected_depth, nearest),
                       refute_scale=score_scale(keypoints[..., 2], config))  # the detector's confidence level
     owner = without_posts(coords[:, :2], cand_uv, clusters, owner, skeletons, config)
+    owner = without_columns(points[candidates], ground, owner, len(skeletons), config)
     labels[candidates] = owner.astype(np.int32)
 
     # 8. How far each person can be.
