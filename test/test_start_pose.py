@@ -160,7 +160,8 @@ def _trunk_fitter(model, hypotheses: int) -> Fitter:
 def test_the_bent_start_pitches_the_pelvis_forward_and_keeps_the_legs_upright(anny_model):
     fitter = _trunk_fitter(anny_model, 1)
     pitch = np.deg2rad(fitter.config.init.start_trunk_pitch_deg)
-    bent = torch.as_tensor(fitter._bent_start_pose)[None]
+    bent_pose = fitter._pitched_start_pose(fitter.config.init.start_trunk_pitch_deg)
+    bent = torch.as_tensor(bent_pose)[None]
     angles = (anny_model.pose_to_anatomical(bent) + anny_model.anat_rest.to(bent.dtype))[0].numpy()
     hips = [anny_model.joint_names.index(name) for name in HIPS]
     np.testing.assert_allclose(angles[hips, 0], pitch, atol=1e-6)  # the hips flexed by the pitch ...
@@ -170,7 +171,7 @@ def test_the_bent_start_pitches_the_pelvis_forward_and_keeps_the_legs_upright(an
     forward = np.array([np.sin(yaw), 0.0, -np.cos(yaw)])  # where the upright body faces
     np.testing.assert_allclose(up @ forward, np.sin(pitch), atol=1e-9)  # ... the pelvis leans forward
     body = anny_model.posed([BodyParams(anny_model.name, np.full(len(anny_model.shape_names), 0.5),
-                                        fitter._bent_start_pose, root, np.zeros(3))])[0]
+                                        bent_pose, root, np.zeros(3))])[0]
     index = {name: anny_model.joint_names.index(name) for name in ("left_hip", "left_ankle", "neck")}
     leg = body.joints[index["left_ankle"]] - body.joints[index["left_hip"]]
     assert np.degrees(np.arccos(leg @ np.array([0.0, 1.0, 0.0]) / np.linalg.norm(leg))) < 5  # legs upright

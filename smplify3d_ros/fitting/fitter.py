@@ -142,9 +142,6 @@ class Fitter:
         self._start_pose = self._builtin_start_pose()
         self._flexed_start_pose = self._builtin_start_pose(self.config.init.start_hip_flexion_deg,
                                                            self.config.init.start_knee_flexion_deg)
-        # bent over at the hips: the pelvis pitched forward (`initializer.pitched_root_orient`) and the hips
-        # flexed as much, so that the legs stay upright
-        self._bent_start_pose = self._builtin_start_pose(self.config.init.start_trunk_pitch_deg)
         self._pitched_poses: dict[float, np.ndarray] = {}  # `_pitched_start_pose`'s
         self._keypoints_only = torch.zeros(1, dtype=torch.long, device=self.device)
         # the keypoint orders every person's starts are tried in: as detected (None), then each of
@@ -156,7 +153,9 @@ class Fitter:
         self._around = free_space.vertex_faces(self.faces_np, int(self.faces_np.max()) + 1)
 
     def _pitched_start_pose(self, pitch_deg: float) -> np.ndarray:
-        """The bent start's pose for a pelvis pitched by `pitch_deg` (hips flexed as much), cached."""
+        """The pose of a start bent over at the hips, for a pelvis pitched forward by `pitch_deg`
+        (`initializer.pitched_root_orient`): the hips flexed as much, so that the legs stay upright; the
+        fixed bent start's (`init.start_trunk_pitch_deg`) and the one read from the image. Cached."""
         key = round(float(pitch_deg), 3)
         if key not in self._pitched_poses:
             self._pitched_poses[key] = self._builtin_start_pose(key)
@@ -294,7 +293,8 @@ class Fitter:
                            for root, pelvis in hypotheses[: cfg.init.flexed_leg_hypotheses]]
             if batch.use_lidar[i]:  # from the image alone, a trunk bent towards the camera is a short one
                 pitch = math.radians(cfg.init.start_trunk_pitch_deg)
-                starts += [(self._bent_start_pose, initializer.pitched_root_orient(root, pitch), pelvis)
+                bent = self._pitched_start_pose(cfg.init.start_trunk_pitch_deg)
+                starts += [(bent, initializer.pitched_root_orient(root, pitch), pelvis)
                            for root, pelvis in hypotheses[: cfg.init.bent_trunk_hypotheses]]
                 read = initializer.image_trunk_start(p, K, cfg.init, [root for root, _ in hypotheses],
                                                      hypotheses[0][1]) if hypotheses else None
