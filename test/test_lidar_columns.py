@@ -102,3 +102,12 @@ def test_the_post_a_person_leans_on_seen_from_near_is_taken_from_their_points():
     on = extract_frame_people(sim.frame, CONFIG)[1].people[k].indices
     assert np.isin(off, own).mean() < 0.5
     assert np.isin(on, own).mean() > 0.9 and np.isin(own, on).mean() > 0.9
+
+
+def test_degenerate_points_give_no_column():
+    """Points on one vertical line, on one ring, or all at one spot: no circle, no error."""
+    line = np.column_stack([np.zeros(60), np.linspace(3.0, 3.5, 60)]), np.linspace(0.0, 1.5, 60)
+    ring = np.column_stack([np.linspace(-0.3, 0.3, 60), np.full(60, 3.0)]), np.full(60, 0.8)
+    spot = np.tile([[0.1, 3.0]], (60, 1)), np.linspace(0.0, 1.5, 60)
+    for xy, height in (line, ring, spot):
+        assert not column_mask(xy, height, CONFIG).any()

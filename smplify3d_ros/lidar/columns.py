@@ -105,6 +105,8 @@ def _standing_column(bearing: np.ndarray, height: np.ndarray, band: np.ndarray, 
     """Whether the points `on` one circle stand as a column (the module docstring's tests). bearing: (M,)
     each point's, rad; band: (M,) its height band, from 0; reach: the circle's centre's distance from the
     sensor, m (a bearing times it is a distance across the line of sight)."""
+    if not on.any():  # the refitted circle can leave the three-point one's points
+        return False
     low, high = float(height[on].min()), float(height[on].max())
     if (low > config.column_max_foot_m or high - low < config.column_min_height_m
             or high < float(height.max()) - config.column_top_gap_m):
