@@ -355,13 +355,10 @@ def image_trunk_start(obs: PersonObservation, K: np.ndarray, cfg: InitConfig, ro
     ok = (depth > 0.0) & (top[..., 2] > 0.0)
     if rise is not None:
         ok &= trunk[..., 2] * rise >= 0.0  # bent the way the points say, towards the camera or away
-    z_at, z_top = np.where(ok, at[..., 2], 1.0), np.where(ok, top[..., 2], 1.0)
-    fu, fv = K[0, 0], K[1, 1]
-    du = fu * (top[..., 0] / z_top - at[..., 0] / z_at) - observed[0]
-    dv = fv * (top[..., 1] / z_top - at[..., 1] / z_at) - observed[1]
-    cost = np.hypot(du, dv)
+    shown = (pinhole_pixels(top, K) - pinhole_pixels(at, K)).reshape(*ok.shape, 2)  # the trunk's vector, px
+    cost = np.hypot(shown[..., 0] - observed[0], shown[..., 1] - observed[1])
     if rise is not None:  # and no shallower than they say, in pixels at the pelvis
-        cost = np.hypot(cost, fu * np.maximum(0.0, abs(rise) - np.abs(trunk[..., 2])) / z_at)
+        cost = np.hypot(cost, K[0, 0] * np.maximum(0.0, abs(rise) - np.abs(trunk[..., 2])) / at[..., 2])
     cost = np.where(ok, cost, np.inf)
     y, p = np.unravel_index(int(np.argmin(cost)), cost.shape)
     if not np.isfinite(cost[y, p]) or np.degrees(pitches[p]) < cfg.image_trunk_min_pitch_deg:
