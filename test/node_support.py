@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import atexit
 import os
-import random
 import shutil
 import tempfile
 import threading
@@ -24,10 +23,13 @@ import numpy as np
 
 def isolate_ros_graph() -> int:
     """Keep DDS traffic on loopback, in a domain of our own; call before rclpy.init."""
-    # each pytest-xdist worker (gw0, gw1, ...) in a domain apart from the others' (a random base per run),
-    # at most 101: the UDP ports of higher domains fall in Linux's ephemeral range (32768-60999)
+    # each pytest-xdist worker (gw0, gw1, ...) in domains apart from the others' (its own residue), and in
+    # one no other process on this host uses (another test run, a `smplify3d bench-live`): reserved
+    from smplify3d_ros.eval.ros_domain import random_free_domain
+
     worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:] or 0)
-    domain = int(os.environ.get("SMPLIFY3D_TEST_DOMAIN", random.randrange(20, 96, 8) + worker))
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    domain = int(os.environ.get("SMPLIFY3D_TEST_DOMAIN", 0)) or random_free_domain(step=workers, offset=worker)
     os.environ["SMPLIFY3D_TEST_DOMAIN"] = str(domain)
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"

@@ -20,7 +20,6 @@ import argparse
 import dataclasses
 import json
 import os
-import random
 import subprocess
 import sys
 import threading
@@ -32,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from smplify3d_ros.cli import at_least
+from smplify3d_ros.eval.ros_domain import random_free_domain
 from smplify3d_ros.keypoints import COCO17_NAMES
 
 DEFAULT_PROFILE = "jackal_vlp16"  # the node's own default params_file
@@ -238,7 +238,8 @@ def run_live(bag: Path, params: str | None, overrides: dict[str, Any], speed: fl
     from msg_adapters import RclpyFactory
     from smplify3d_ros.node import create_node
 
-    os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(20, 101)))  # <= 101: ports below the ephemeral range
+    if "ROS_DOMAIN_ID" not in os.environ:  # a domain of its own: another run beside this one would feed it its bag
+        os.environ["ROS_DOMAIN_ID"] = str(random_free_domain())
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     rclpy.init()
     result = LiveResult()
