@@ -46,6 +46,16 @@ def domain_in_use(domain: int) -> bool:
     return False
 
 
+def domain_taken(domain: int) -> bool:
+    """Whether another process on this host uses `domain` or holds its reservation (this process's own
+    reservation counts as taken too)."""
+    sock = _bound(PORT_BASE + DOMAIN_GAIN * domain + RESERVATION)
+    if sock is None:
+        return True
+    sock.close()
+    return domain_in_use(domain)
+
+
 def reserve_domain(candidates: Iterable[int]) -> int | None:
     """The first of `candidates` that no process on this host uses or holds, reserved for this process's
     lifetime (a domain this process already holds is returned again); None when all are taken."""
